@@ -1,15 +1,40 @@
 // dropfit: from a drop-test session folder to fitted, validated mat parameters.
-#include <CLI/CLI.hpp>
+// main only parses the command line; each subcommand is a cli/*_command.cpp.
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <exception>
+#include <utility>
+#include <vector>
 
-#include "core/error.h"
+#include "cli/command.h"
+
+namespace dropfit::cli {
+namespace {
+std::vector<std::pair<int, CommandFactory>>& registry() {
+  static std::vector<std::pair<int, CommandFactory>> commands;
+  return commands;
+}
+}  // namespace
+
+bool register_command(int order, CommandFactory factory) {
+  registry().emplace_back(order, factory);
+  return true;
+}
+
+void add_registered_commands(CLI::App& app, CommandContext& ctx) {
+  auto commands = registry();
+  std::stable_sort(commands.begin(), commands.end(),
+                   [](const auto& a, const auto& b) { return a.first < b.first; });
+  for (const auto& [order, factory] : commands) factory(app, ctx);
+}
+}  // namespace dropfit::cli
 
 int main(int argc, char** argv) {
   CLI::App app{"dropfit: drop-test sessions to fitted landing-mat models"};
   app.require_subcommand(1);
-  int exit_code = 0;
+  dropfit::cli::CommandContext ctx;
+  dropfit::cli::add_registered_commands(app, ctx);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -18,5 +43,5 @@ int main(int argc, char** argv) {
     fmt::print(stderr, "dropfit: error: {}\n", e.what());
     return 1;
   }
-  return exit_code;
+  return ctx.exit_code;
 }

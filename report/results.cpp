@@ -1,1 +1,98 @@
-// Placeholder: implemented by the stage's work.
+#include "report/results.h"
+
+#include <fmt/format.h>
+
+#include <cmath>
+#include <nlohmann/json.hpp>
+
+namespace dropfit::report {
+
+using nlohmann::json;
+
+std::string csv_number(double value, int significant) {
+  if (std::isnan(value)) return "NaN";
+  return fmt::format("{:.{}g}", value, significant);
+}
+
+namespace {
+json vec3(const Eigen::Vector3d& v, double scale = 1.0) { return json::array({v.x() * scale, v.y() * scale, v.z() * scale}); }
+}  // namespace
+
+std::string calibration_json(const calibration::CalibrationResult& result) {
+  bool distorted = false;
+  json cameras = json::array();
+  for (const auto& fit : result.cameras) {
+    distorted = distorted || !fit.camera.distortion.empty();
+    json dlt = json::array();
+    for (int i = 0; i < 11; ++i) dlt.push_back(fit.camera.dlt[i]);
+    cameras.push_back({{"name", fit.camera.name},
+                       {"dlt", dlt},
+                       {"distortion", fit.camera.distortion},
+                       {"principal_point_px", {fit.camera.principal_point_px.x(), fit.camera.principal_point_px.y()}},
+                       {"focal_px", fit.camera.focal_px},
+                       {"fit_rms_px", fit.fit_rms_px},
+                       {"n_fit_points", fit.n_fit_points}});
+  }
+  json checks = json::array();
+  for (const auto& c : result.check_points) checks.push_back({{"id", c.id}, {"error_mm", vec3(c.error_m, 1e3)}});
+  json loo = json::array();
+  for (const auto& l : result.leave_one_out) loo.push_back({{"id", l.id}, {"residual_mm", l.residual_m * 1e3}});
+  json doc = {{"model", distorted ? "dlt16" : "dlt11"},
+              {"cameras", cameras},
+              {"check_points", checks},
+              {"check_rms_mm", vec3(result.check_rms_m, 1e3)},
+              {"check_max_mm", result.check_max_m * 1e3},
+              {"leave_one_out", loo},
+              {"outlier_markers", result.outliers}};
+  return doc.dump(2) + "\n";
+}
+
+std::string dlt_coefficients_csv(const std::vector<calibration::Camera>& cameras) {
+  std::string out;
+  for (int i = 0; i < 11; ++i) {
+    for (size_t c = 0; c < cameras.size(); ++c) {
+      if (c) out += ',';
+      out += fmt::format("{:.15g}", cameras[c].dlt[i]);
+    }
+    out += '\n';
+  }
+  return out;
+}
+
+std::string xyzpts_csv(const reconstruction::Trajectories& trajectories) {
+  const int n_points = trajectories.n_points();
+  std::string out;
+  for (int p = 0; p < n_points; ++p) {
+    if (p) out += ',';
+    out += fmt::format("pt{0}_X,pt{0}_Y,pt{0}_Z", p + 1);
+  }
+  out += '\n';
+  for (Eigen::Index f = 0; f < trajectories.lab_m.rows(); ++f) {
+    for (Eigen::Index c = 0; c < trajectories.lab_m.cols(); ++c) {
+      if (c) out += ',';
+      out += csv_number(trajectories.lab_m(f, c));
+    }
+    out += '\n';
+  }
+  return out;
+}
+
+std::string residuals_csv(const reconstruction::Trajectories& trajectories) {
+  const int n_points = trajectories.n_points();
+  std::string out;
+  for (int p = 0; p < n_points; ++p) {
+    if (p) out += ',';
+    out += fmt::format("pt{}_res_px", p + 1);
+  }
+  out += '\n';
+  for (Eigen::Index f = 0; f < trajectories.residual_px.rows(); ++f) {
+    for (int p = 0; p < n_points; ++p) {
+      if (p) out += ',';
+      out += csv_number(trajectories.residual_px(f, p), 6);
+    }
+    out += '\n';
+  }
+  return out;
+}
+
+}  // namespace dropfit::report

@@ -1,0 +1,29 @@
+#pragma once
+// Results as text, exactly as in shared/spec/results-format.md: JSON for
+// programs, CSV for spreadsheets. Pure formatting: nothing here touches the
+// disk (see report/output.h for writing).
+#include <string>
+#include <vector>
+
+#include "calibration/calibration.h"
+#include "reconstruction/reconstruction.h"
+
+namespace dropfit::report {
+
+// OUT/calibration.json ("dlt11", or "dlt16" when any camera has distortion).
+std::string calibration_json(const calibration::CalibrationResult& result);
+
+// The DLT coefficients as an 11 x N headerless CSV, one column per camera
+// (the DLTdv / easyWand / Argus convention).
+std::string dlt_coefficients_csv(const std::vector<calibration::Camera>& cameras);
+
+// 3-D trajectories with DLTdv's xyzpts column naming (pt1_X, pt1_Y, pt1_Z,
+// ...), metres in the lab frame; gaps as NaN.
+std::string xyzpts_csv(const reconstruction::Trajectories& trajectories);
+// Per-point RMS reprojection residual, pixels (pt1_res_px, ...).
+std::string residuals_csv(const reconstruction::Trajectories& trajectories);
+
+// Number formatting shared by every CSV writer: NaN written as "NaN".
+std::string csv_number(double value, int significant = 9);
+
+}  // namespace dropfit::report
