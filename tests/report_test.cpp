@@ -1,0 +1,82 @@
+// The report's building blocks: axis ticks, SVG plots, HTML assembly and
+// the all-or-nothing output set.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+
+#include "core/error.h"
+#include "report/html.h"
+#include "report/output.h"
+#include "report/plot.h"
+
+namespace fs = std::filesystem;
+using namespace dropfit::report;
+
+TEST(NiceTicks, CoverTheRangeWithRoundSteps) {
+  const auto ticks = nice_ticks(0.0, 7054.0);
+  ASSERT_GE(ticks.size(), 4u);
+  EXPECT_LE(ticks.front(), 0.0);
+  EXPECT_GE(ticks.back(), 7054.0);
+  const double step = ticks[1] - ticks[0];
+  EXPECT_DOUBLE_EQ(step, 2000.0);  // 0, 2000, ..., 8000
+}
+
+TEST(LinePlot, DrawsOnePathPerSeriesAndBreaksAtGaps) {
+  LinePlot plot{"GRF", "time (ms)", "force (N)", {}, 640, 360};
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  plot.series.push_back({"measured", {0, 1, 2, 3, 4}, {0, 10, nan, 30, 40}, "", false, false});
+  plot.series.push_back({"model 4", {0, 1, 2, 3, 4}, {0, 12, 22, 31, 39}, "", true, false});
+  const std::string s = svg(plot);
+  size_t paths = 0;
+  for (size_t pos = s.find("class=\"series\""); pos != std::string::npos; pos = s.find("class=\"series\"", pos + 1)) {
+    ++paths;
+  }
+  EXPECT_EQ(paths, 2u);
+  // The gap at x = 2 starts a new sub-path: two "M" commands in the first series.
+  const size_t first = s.find("class=\"series\" d=\"");
+  const size_t end = s.find('"', first + 18);
+  const std::string d = s.substr(first + 18, end - first - 18);
+  EXPECT_EQ(std::count(d.begin(), d.end(), 'M'), 2);
+  EXPECT_NE(s.find("time (ms)"), std::string::npos);
+  EXPECT_NE(s.find("model 4"), std::string::npos);
+}
+
+TEST(BarPlot, OneBarPerFiniteValue) {
+  BarPlot plot{"check markers", "error (mm)", {"c02", "c04", "c06"}, {}, 640, 320};
+  plot.groups.push_back({"x", {0.1, -0.2, 0.3}, ""});
+  plot.groups.push_back({"y", {0.2, std::nan(""), 0.1}, ""});
+  const std::string s = svg(plot);
+  size_t bars = 0;
+  for (size_t pos = s.find("class=\"bar\""); pos != std::string::npos; pos = s.find("class=\"bar\"", pos + 1)) ++bars;
+  EXPECT_EQ(bars, 5u);
+}
+
+TEST(HtmlDocument, EscapesTextAndNumbersFigures) {
+  HtmlDocument doc("Mat <report>");
+  doc.paragraph("k1 < k2 & r1 > 0");
+  doc.figure("<svg></svg>", "first");
+  doc.figure("<svg></svg>", "second");
+  const std::string html = doc.str();
+  EXPECT_NE(html.find("Mat &lt;report&gt;"), std::string::npos);
+  EXPECT_NE(html.find("k1 &lt; k2 &amp; r1 &gt; 0"), std::string::npos);
+  EXPECT_NE(html.find("Figure 2. second"), std::string::npos);
+  EXPECT_EQ(html.find("<script"), std::string::npos);
+}
+
+TEST(OutputSet, RefusesToWriteIntoTheSessionFolder) {
+  const fs::path root = fs::temp_directory_path() / "dropfit-output-test";
+  fs::remove_all(root);
+  fs::create_directories(root / "session");
+  OutputSet out;
+  out.add("calibration.json", "{}\n");
+  EXPECT_THROW(out.commit((root / "session" / "out").string(), {(root / "session").string()}), dropfit::Error);
+  EXPECT_FALSE(fs::exists(root / "session" / "out"));
+  out.commit((root / "out").string(), {(root / "session").string()});
+  std::ifstream in(root / "out" / "calibration.json");
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(text, "{}\n");
+  fs::remove_all(root);
+}
