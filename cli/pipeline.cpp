@@ -44,4 +44,8 @@ void add_reconstruction_outputs(report::OutputSet& out, const std::string& trial
   out.add("trials/" + trial_id + "/residuals.csv", report::residuals_csv(trajectories));
 }
 
+fitting::Simulation simulate_fitted(const report::FitFile& fit, const fitting::Impact& impact) {
+  return fitting::simulate(fit.model, fit.params, impact);
+}
+
 }  // namespace dropfit::pipeline

@@ -8,6 +8,8 @@
 #include "calibration/calibration.h"
 #include "capture/session.h"
 #include "reconstruction/reconstruction.h"
+#include "fitting/models.h"
+#include "report/export.h"
 #include "report/output.h"
 
 namespace dropfit::pipeline {
@@ -27,5 +29,9 @@ void add_calibration_outputs(report::OutputSet& out, const calibration::Calibrat
 // trials/T/xyzpts.csv and residuals.csv for one trial.
 void add_reconstruction_outputs(report::OutputSet& out, const std::string& trial_id,
                                 const reconstruction::Trajectories& trajectories);
+
+// Simulates an impact with a fitted parameter file's model (Models 1-5;
+// Model 5 with its default geometry).
+fitting::Simulation simulate_fitted(const report::FitFile& fit, const fitting::Impact& impact);
 
 }  // namespace dropfit::pipeline

@@ -95,4 +95,13 @@ std::string residuals_csv(const reconstruction::Trajectories& trajectories) {
   return out;
 }
 
+std::string simulation_csv(const fitting::Simulation& sim) {
+  std::string out = "t_s,grf_n,impactor_m,surface_m\n";
+  for (Eigen::Index i = 0; i < sim.t_s.size(); ++i) {
+    out += fmt::format("{},{},{},{}\n", csv_number(sim.t_s[i]), csv_number(sim.grf_n[i]), csv_number(sim.impactor_m[i]),
+                       csv_number(sim.surface_m[i]));
+  }
+  return out;
+}
+
 }  // namespace dropfit::report

@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "calibration/calibration.h"
+#include "fitting/models.h"
 #include "reconstruction/reconstruction.h"
 
 namespace dropfit::report {
@@ -22,6 +23,9 @@ std::string dlt_coefficients_csv(const std::vector<calibration::Camera>& cameras
 std::string xyzpts_csv(const reconstruction::Trajectories& trajectories);
 // Per-point RMS reprojection residual, pixels (pt1_res_px, ...).
 std::string residuals_csv(const reconstruction::Trajectories& trajectories);
+
+// A simulated impact: t_s,grf_n,impactor_m,surface_m.
+std::string simulation_csv(const fitting::Simulation& sim);
 
 // Number formatting shared by every CSV writer: NaN written as "NaN".
 std::string csv_number(double value, int significant = 9);

@@ -1,0 +1,166 @@
+#include "report/export.h"
+
+#include <fmt/format.h>
+
+#include <cmath>
+#include <nlohmann/json.hpp>
+
+#include "core/error.h"
+
+namespace dropfit::report {
+namespace {
+
+struct Field {
+  const char* name;
+  double fitting::MatParams::*member;
+};
+
+constexpr Field kFields[] = {
+    {"k1_n_m", &fitting::MatParams::k1_n_m},
+    {"k2_n_m", &fitting::MatParams::k2_n_m},
+    {"k3_n_m", &fitting::MatParams::k3_n_m},
+    {"r1_n_s_m", &fitting::MatParams::r1_n_s_m},
+    {"r2_n_s_m", &fitting::MatParams::r2_n_s_m},
+    {"r3_n_s_m", &fitting::MatParams::r3_n_s_m},
+    {"m_eff_kg", &fitting::MatParams::m_eff_kg},
+    {"m1_kg", &fitting::MatParams::m1_kg},
+    {"m2_kg", &fitting::MatParams::m2_kg},
+    {"k1_cubic_n_m3", &fitting::MatParams::k1_cubic_n_m3},
+    {"r1_unload_n_s_m", &fitting::MatParams::r1_unload_n_s_m},
+    {"maxwell_k_n_m", &fitting::MatParams::maxwell_k_n_m},
+    {"maxwell_tau_s", &fitting::MatParams::maxwell_tau_s},
+};
+
+std::vector<std::string> used_names(fitting::ModelKind kind) {
+  switch (kind) {
+    case fitting::ModelKind::Model1: return {"k1_n_m", "r1_n_s_m"};
+    case fitting::ModelKind::Model2: return {"k1_n_m", "r1_n_s_m", "m_eff_kg"};
+    case fitting::ModelKind::Model3: return {"k1_n_m", "k2_n_m", "r1_n_s_m", "r2_n_s_m", "m1_kg", "m2_kg"};
+    case fitting::ModelKind::Model4:
+    case fitting::ModelKind::Model5:
+      return {"k1_n_m", "k2_n_m", "k3_n_m", "r1_n_s_m", "r2_n_s_m", "r3_n_s_m", "m1_kg", "m2_kg"};
+  }
+  return {};
+}
+
+double get(const fitting::MatParams& p, const std::string& name) {
+  for (const auto& f : kFields) {
+    if (name == f.name) return p.*(f.member);
+  }
+  return NAN;
+}
+
+}  // namespace
+
+std::vector<std::pair<std::string, double>> named_parameters(fitting::ModelKind kind,
+                                                             const fitting::MatParams& params) {
+  std::vector<std::pair<std::string, double>> out;
+  for (const auto& name : used_names(kind)) out.emplace_back(name, get(params, name));
+  if (params.k1_cubic_n_m3 != 0.0) out.emplace_back("k1_cubic_n_m3", params.k1_cubic_n_m3);
+  if (params.r1_unload_n_s_m >= 0.0) out.emplace_back("r1_unload_n_s_m", params.r1_unload_n_s_m);
+  if (params.maxwell_k_n_m > 0.0 && params.maxwell_tau_s > 0.0) {
+    out.emplace_back("maxwell_k_n_m", params.maxwell_k_n_m);
+    out.emplace_back("maxwell_tau_s", params.maxwell_tau_s);
+  }
+  return out;
+}
+
+fitting::MatParams params_from_named(const std::vector<std::pair<std::string, double>>& named,
+                                     const std::string& source) {
+  fitting::MatParams params;
+  for (const auto& [name, value] : named) {
+    bool known = false;
+    for (const auto& f : kFields) {
+      if (name == f.name) {
+        params.*(f.member) = value;
+        known = true;
+      }
+    }
+    if (!known) throw InputError(source, 0, 0, "parameters." + name, "unknown parameter name");
+    if (!std::isfinite(value)) throw InputError(source, 0, 0, "parameters." + name, "not a finite number");
+  }
+  return params;
+}
+
+FitFile parse_fit_json(const std::string& text, const std::string& path) {
+  nlohmann::json doc;
+  try {
+    doc = nlohmann::json::parse(text);
+  } catch (const nlohmann::json::parse_error& e) {
+    throw InputError(path, 0, 0, "", fmt::format("not valid JSON: {}", e.what()));
+  }
+  if (!doc.is_object()) throw InputError(path, 0, 0, "", "expected a JSON object");
+  FitFile file;
+  if (!doc.contains("model") || !doc["model"].is_string()) throw InputError(path, 0, 0, "model", "missing or not a string");
+  try {
+    file.model = fitting::model_from_name(doc["model"].get<std::string>());
+  } catch (const Error& e) {
+    throw InputError(path, 0, 0, "model", e.what());
+  }
+  if (!doc.contains("parameters") || !doc["parameters"].is_object()) {
+    throw InputError(path, 0, 0, "parameters", "missing or not an object");
+  }
+  std::vector<std::pair<std::string, double>> named;
+  for (const auto& [key, value] : doc["parameters"].items()) {
+    if (!value.is_number()) throw InputError(path, 0, 0, "parameters." + key, "not a number");
+    named.emplace_back(key, value.get<double>());
+  }
+  file.params = params_from_named(named, path);
+  if (doc.contains("impactor_mass_kg")) {
+    if (!doc["impactor_mass_kg"].is_number()) throw InputError(path, 0, 0, "impactor_mass_kg", "not a number");
+    file.impactor_mass_kg = doc["impactor_mass_kg"].get<double>();
+  }
+  return file;
+}
+
+std::string mjcf_xml(fitting::ModelKind kind, const fitting::MatParams& p, const MatGeometry& g) {
+  if (kind != fitting::ModelKind::Model3 && kind != fitting::ModelKind::Model4) {
+    throw Error(fmt::format("MJCF export is for Models 3 and 4 (layered mats), not {}", fitting::model_name(kind)));
+  }
+  const bool four = kind == fitting::ModelKind::Model4;
+  // Springs: Model 3 joins m1-m2 with (k1, r1) and m2-ground with (k2, r2);
+  // Model 4 adds (k1, r1) above m1, so its layer springs are (k2, r2), (k3, r3).
+  const double k_top = four ? p.k2_n_m : p.k1_n_m, r_top = four ? p.r2_n_s_m : p.r1_n_s_m;
+  const double k_bottom = four ? p.k3_n_m : p.k2_n_m, r_bottom = four ? p.r3_n_s_m : p.r2_n_s_m;
+  const double hx = g.length_m / 2, hy = g.width_m / 2;
+  const double hb = g.bottom_thickness_m / 2, ht = g.top_thickness_m / 2;
+  std::string xml;
+  xml += "<?xml version=\"1.0\" encoding=\"utf-8\"?>\n";
+  xml += fmt::format("<!-- dropfit {} landing mat: layers on vertical slide joints; stiffness N/m, damping N s/m, mass kg.\n"
+                     "     Each joint's spring is the model element below that body. -->\n",
+                     fitting::model_name(kind));
+  xml += "<mujoco model=\"dropfit_mat\">\n";
+  xml += "  <option timestep=\"0.0001\" gravity=\"0 0 -9.81\"/>\n";
+  xml += "  <worldbody>\n";
+  xml += fmt::format("    <body name=\"mat_bottom\" pos=\"0 0 {:.6g}\">\n", hb);
+  xml += fmt::format(
+      "      <joint name=\"mat_bottom_z\" type=\"slide\" axis=\"0 0 1\" stiffness=\"{:.9g}\" damping=\"{:.9g}\"/>\n",
+      k_bottom, r_bottom);
+  xml += fmt::format("      <inertial pos=\"0 0 0\" mass=\"{:.9g}\" diaginertia=\"1 1 1\"/>\n", p.m2_kg);
+  xml += fmt::format("      <geom type=\"box\" size=\"{:.6g} {:.6g} {:.6g}\" contype=\"0\" conaffinity=\"0\" rgba=\"0.3 0.4 0.8 1\"/>\n",
+                     hx, hy, hb);
+  xml += fmt::format("      <body name=\"mat_top\" pos=\"0 0 {:.6g}\">\n", hb + ht);
+  xml += fmt::format(
+      "        <joint name=\"mat_top_z\" type=\"slide\" axis=\"0 0 1\" stiffness=\"{:.9g}\" damping=\"{:.9g}\"/>\n",
+      k_top, r_top);
+  xml += fmt::format("        <inertial pos=\"0 0 0\" mass=\"{:.9g}\" diaginertia=\"1 1 1\"/>\n", p.m1_kg);
+  if (four) {
+    xml += fmt::format("        <geom type=\"box\" size=\"{:.6g} {:.6g} {:.6g}\" contype=\"0\" conaffinity=\"0\" rgba=\"0.2 0.7 0.3 1\"/>\n",
+                       hx, hy, ht);
+    xml += fmt::format("        <body name=\"mat_surface\" pos=\"0 0 {:.6g}\">\n", ht);
+    xml += fmt::format(
+        "          <joint name=\"mat_surface_z\" type=\"slide\" axis=\"0 0 1\" stiffness=\"{:.9g}\" damping=\"{:.9g}\"/>\n",
+        p.k1_n_m, p.r1_n_s_m);
+    xml += "          <inertial pos=\"0 0 0\" mass=\"0.01\" diaginertia=\"1e-4 1e-4 1e-4\"/>\n";
+    xml += fmt::format("          <geom name=\"mat_contact\" type=\"box\" size=\"{:.6g} {:.6g} 0.001\" rgba=\"0.9 0.8 0.2 1\"/>\n",
+                       hx, hy);
+    xml += "        </body>\n";
+  } else {
+    xml += fmt::format("        <geom name=\"mat_contact\" type=\"box\" size=\"{:.6g} {:.6g} {:.6g}\" rgba=\"0.2 0.7 0.3 1\"/>\n",
+                       hx, hy, ht);
+  }
+  xml += "      </body>\n    </body>\n  </worldbody>\n</mujoco>\n";
+  return xml;
+}
+
+}  // namespace dropfit::report
