@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cmath>
 #include <nlohmann/json.hpp>
 
@@ -91,6 +92,58 @@ std::string residuals_csv(const reconstruction::Trajectories& trajectories) {
       out += csv_number(trajectories.residual_px(f, p), 6);
     }
     out += '\n';
+  }
+  return out;
+}
+
+namespace {
+// JSON has no NaN: unknown numbers are null.
+json number_or_null(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
+}  // namespace
+
+std::string trial_json(const trial::TrialResult& r) {
+  json doc = {{"id", r.id},
+              {"accepted", r.accepted},
+              {"reject_reason", r.reject_reason},
+              {"impact_velocity_m_s", number_or_null(r.impact_velocity_m_s)},
+              {"impact_velocity_ci_m_s", number_or_null(r.impact_velocity_ci_m_s)},
+              {"max_deformation_m", number_or_null(r.max_deformation_m)},
+              {"tilt_deg", number_or_null(r.tilt_deg)},
+              {"peak_force_n", number_or_null(r.peak_force_n)},
+              {"time_to_peak_s", number_or_null(r.time_to_peak_s)},
+              {"contact_time_s", number_or_null(r.contact_time_s)},
+              {"video_offset_s", number_or_null(r.video_offset_s)},
+              {"video_offset_trajectory_s", number_or_null(r.video_offset_trajectory_s)},
+              {"video_contact_time_s", number_or_null(r.video_contact_time_s)},
+              {"max_deformation_time_s", number_or_null(r.max_deformation_time_s)},
+              {"end_time_s", number_or_null(r.end_time_s)},
+              {"freefall_rms_m", number_or_null(r.freefall_rms_m)},
+              {"freefall_frames", r.freefall_frames},
+              {"impulse_ratio", number_or_null(r.impulse_ratio)}};
+  return doc.dump(2) + "\n";
+}
+
+std::string series_csv(const trial::Series& s) {
+  std::string out = "t_s,fz_n,impactor_z_m,deformation_m,surface_z_m\n";
+  for (Eigen::Index i = 0; i < s.t_s.size(); ++i) {
+    out += fmt::format("{},{},{},{},{}\n", csv_number(s.t_s[i]), csv_number(s.fz_n[i]), csv_number(s.impactor_z_m[i]),
+                       csv_number(s.deformation_m[i]), csv_number(s.surface_z_m[i]));
+  }
+  return out;
+}
+
+std::string summary_csv(const std::vector<trial::TrialResult>& trials) {
+  std::string out =
+      "trial,accepted,impact_velocity_m_s,impact_velocity_ci_m_s,max_deformation_m,peak_force_n,time_to_peak_s,"
+      "tilt_deg,video_offset_ms,reject_reason\n";
+  for (const auto& r : trials) {
+    std::string reason = r.reject_reason;
+    std::replace(reason.begin(), reason.end(), '"', '\'');
+    out += fmt::format("{},{},{},{},{},{},{},{},{},\"{}\"\n", r.id, r.accepted ? "yes" : "no",
+                       csv_number(r.impact_velocity_m_s, 5), csv_number(r.impact_velocity_ci_m_s, 3),
+                       csv_number(r.max_deformation_m, 5), csv_number(r.peak_force_n, 6),
+                       csv_number(r.time_to_peak_s, 5), csv_number(r.tilt_deg, 3), csv_number(r.video_offset_s * 1e3, 4),
+                       reason);
   }
   return out;
 }

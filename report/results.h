@@ -8,6 +8,7 @@
 #include "calibration/calibration.h"
 #include "fitting/models.h"
 #include "reconstruction/reconstruction.h"
+#include "trial/trial.h"
 
 namespace dropfit::report {
 
@@ -23,6 +24,14 @@ std::string dlt_coefficients_csv(const std::vector<calibration::Camera>& cameras
 std::string xyzpts_csv(const reconstruction::Trajectories& trajectories);
 // Per-point RMS reprojection residual, pixels (pt1_res_px, ...).
 std::string residuals_csv(const reconstruction::Trajectories& trajectories);
+
+// OUT/trials/T/trial.json and series.csv (t_s,fz_n,impactor_z_m,deformation_m,surface_z_m).
+std::string trial_json(const trial::TrialResult& result);
+std::string series_csv(const trial::Series& series);
+// The session summary in the shape of the paper's Table 1, one row a trial:
+// trial,accepted,impact_velocity_m_s,impact_velocity_ci_m_s,max_deformation_m,
+// peak_force_n,time_to_peak_s,tilt_deg,video_offset_ms,reject_reason
+std::string summary_csv(const std::vector<trial::TrialResult>& trials);
 
 // A simulated impact: t_s,grf_n,impactor_m,surface_m.
 std::string simulation_csv(const fitting::Simulation& sim);
