@@ -3,6 +3,7 @@
 #include "report/results.h"
 
 #include <algorithm>
+#include <cmath>
 
 #include "core/error.h"
 
@@ -113,7 +114,84 @@ void add_trial_outputs(report::OutputSet& out, const TrialOutcome& outcome) {
   add_reconstruction_outputs(out, outcome.result.id, outcome.trajectories);
 }
 
-fitting::Simulation simulate_fitted(const report::FitFile& fit, const fitting::Impact& impact) {
+fitting::TrialData fitting_trial(const Manifest& manifest, const trial::TrialResult& result) {
+  fitting::TrialData data;
+  data.id = result.id;
+  data.accepted = result.accepted;
+  data.impact_velocity_m_s = result.impact_velocity_m_s;
+  data.impactor_mass_kg = manifest.impactor.mass_kg;
+  data.gravity_m_s2 = manifest.gravity_m_s2;
+  const auto& s = result.series;
+  // The surface markers' height at rest: their mean before contact.
+  double rest_sum = 0.0;
+  int rest_n = 0;
+  for (Eigen::Index i = 0; i < s.t_s.size(); ++i) {
+    if (s.t_s[i] < result.contact_time_s && std::isfinite(s.surface_z_m[i])) {
+      rest_sum += s.surface_z_m[i];
+      ++rest_n;
+    }
+  }
+  const double surface_rest_m = rest_n > 0 ? rest_sum / rest_n : manifest.forceplate.mat_top_z_m;
+  std::vector<Eigen::Index> keep;
+  for (Eigen::Index i = 0; i < s.t_s.size(); ++i) {
+    if (s.t_s[i] >= result.contact_time_s) keep.push_back(i);
+  }
+  const auto n = static_cast<Eigen::Index>(keep.size());
+  data.t_s.resize(n);
+  data.grf_n.resize(n);
+  data.impactor_m.resize(n);
+  data.surface_m.resize(n);
+  for (Eigen::Index k = 0; k < n; ++k) {
+    const Eigen::Index i = keep[k];
+    data.t_s[k] = s.t_s[i] - result.contact_time_s;
+    data.grf_n[k] = s.fz_n[i];
+    data.impactor_m[k] = s.deformation_m[i];
+    data.surface_m[k] = surface_rest_m - s.surface_z_m[i];
+  }
+  return data;
+}
+
+fitting::Model5Geometry model5_geometry(const Manifest& manifest) {
+  fitting::Model5Geometry g;
+  g.mat_length_m = manifest.mat.length_m;
+  g.mat_width_m = manifest.mat.width_m;
+  g.footprint_length_m = manifest.impactor.footprint_m.x();
+  g.footprint_width_m = manifest.impactor.footprint_m.y();
+  return g;
+}
+
+fitting::FitOptions fit_options(const Manifest& manifest, fitting::ModelKind model) {
+  fitting::FitOptions options;
+  options.model = model;
+  const auto& layers = manifest.mat.layers;
+  if (layers.size() >= 2) {
+    options.m2_kg = layers.back().mass_kg;
+    options.m1_kg = manifest.mat.mass_kg() - options.m2_kg;
+  } else if (layers.size() == 1) {
+    options.m1_kg = options.m2_kg = layers.front().mass_kg / 2;
+  }
+  if (model == fitting::ModelKind::Model5) {
+    const auto geometry = model5_geometry(manifest);
+    options.simulator = [geometry](const fitting::MatParams& p, const fitting::Impact& impact) {
+      return fitting::simulate_model5(p, geometry, impact);
+    };
+  }
+  return options;
+}
+
+void add_fit_outputs(report::OutputSet& out, const std::string& prefix, const fitting::FitResult& fit,
+                     const std::vector<fitting::TrialData>& trials, double impactor_mass_kg) {
+  out.add(prefix + "fit.json", report::fit_json(fit, impactor_mass_kg));
+  for (const auto& report : fit.trials) {
+    for (const auto& data : trials) {
+      if (data.id == report.id) out.add(prefix + "series/" + data.id + ".csv", report::fit_series_csv(data, report));
+    }
+  }
+}
+
+fitting::Simulation simulate_fitted(const report::FitFile& fit, const fitting::Impact& impact,
+                                    const fitting::Model5Geometry& geometry) {
+  if (fit.model == fitting::ModelKind::Model5) return fitting::simulate_model5(fit.params, geometry, impact);
   return fitting::simulate(fit.model, fit.params, impact);
 }
 

@@ -8,6 +8,8 @@
 #include "calibration/calibration.h"
 #include "capture/session.h"
 #include "reconstruction/reconstruction.h"
+#include "fitting/fit.h"
+#include "fitting/model5.h"
 #include "fitting/models.h"
 #include "report/export.h"
 #include "report/output.h"
@@ -48,8 +50,26 @@ TrialOutcome process_trial(const Manifest& manifest, const TrialData& trial,
 // trial.json, series.csv, and the trial's 3-D trajectories.
 void add_trial_outputs(report::OutputSet& out, const TrialOutcome& outcome);
 
+// The fitter's view of a processed trial: times from contact, the plate's
+// Fz, the impactor face travel below the undeformed mat top and the mat
+// surface travel (both NaN in gaps).
+fitting::TrialData fitting_trial(const Manifest& manifest, const trial::TrialResult& result);
+
+// Model 5's geometry from the manifest (mat and impactor footprint).
+fitting::Model5Geometry model5_geometry(const Manifest& manifest);
+
+// Fitter options for `model` with the manifest's layer masses (top = every
+// layer above the last, bottom = the last) and Model 5's simulator.
+fitting::FitOptions fit_options(const Manifest& manifest, fitting::ModelKind model);
+
+// fit.json (model's canonical parameters) and the measured-vs-simulated
+// series of every trial, under `prefix` ("" or "fits/model3/").
+void add_fit_outputs(report::OutputSet& out, const std::string& prefix, const fitting::FitResult& fit,
+                     const std::vector<fitting::TrialData>& trials, double impactor_mass_kg);
+
 // Simulates an impact with a fitted parameter file's model (Models 1-5;
 // Model 5 with its default geometry).
-fitting::Simulation simulate_fitted(const report::FitFile& fit, const fitting::Impact& impact);
+fitting::Simulation simulate_fitted(const report::FitFile& fit, const fitting::Impact& impact,
+                                    const fitting::Model5Geometry& geometry = {});
 
 }  // namespace dropfit::pipeline

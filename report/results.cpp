@@ -6,6 +6,8 @@
 #include <cmath>
 #include <nlohmann/json.hpp>
 
+#include "report/export.h"
+
 namespace dropfit::report {
 
 using nlohmann::json;
@@ -144,6 +146,88 @@ std::string summary_csv(const std::vector<trial::TrialResult>& trials) {
                        csv_number(r.max_deformation_m, 5), csv_number(r.peak_force_n, 6),
                        csv_number(r.time_to_peak_s, 5), csv_number(r.tilt_deg, 3), csv_number(r.video_offset_s * 1e3, 4),
                        reason);
+  }
+  return out;
+}
+
+namespace {
+json characteristics_json(const fitting::Characteristics& c) {
+  return {{"peak_force_n", number_or_null(c.peak_force_n)},
+          {"time_to_peak_s", number_or_null(c.time_to_peak_s)},
+          {"first_peak_n", number_or_null(c.first_peak_n)},
+          {"first_peak_s", number_or_null(c.first_peak_s)},
+          {"second_peak_n", number_or_null(c.second_peak_n)},
+          {"second_peak_s", number_or_null(c.second_peak_s)},
+          {"min_between_n", number_or_null(c.min_between_n)},
+          {"min_between_s", number_or_null(c.min_between_s)},
+          {"max_loading_rate_n_s", number_or_null(c.max_loading_rate_n_s)},
+          {"max_loading_rate_s", number_or_null(c.max_loading_rate_s)}};
+}
+}  // namespace
+
+std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg) {
+  json parameters = json::object();
+  for (const auto& [name, value] : named_parameters(fit.model, fit.params)) parameters[name] = value;
+  json estimates = json::array();
+  for (const auto& e : fit.estimates) {
+    estimates.push_back({{"name", e.name},
+                         {"value", e.value},
+                         {"se", number_or_null(e.se)},
+                         {"rel_se", number_or_null(e.rel_se)},
+                         {"free", e.free},
+                         {"identifiable", e.identifiable}});
+  }
+  json trials = json::array();
+  for (const auto& t : fit.trials) {
+    trials.push_back({{"id", t.id},
+                      {"train", t.train},
+                      {"impact_velocity_m_s", t.impact_velocity_m_s},
+                      {"rms_force_pct_peak", number_or_null(t.comparison.rms_force_pct_peak)},
+                      {"peak_force_pct_diff", number_or_null(t.comparison.peak_force_pct_diff)},
+                      {"time_to_peak_ms_diff", number_or_null(t.comparison.time_to_peak_ms_diff)},
+                      {"max_deformation_mm_diff", number_or_null(t.max_deformation_mm_diff)},
+                      {"rms_impactor_mm", number_or_null(t.rms_impactor_mm)},
+                      {"measured", characteristics_json(t.measured)},
+                      {"simulated", characteristics_json(t.simulated)}});
+  }
+  json sensitivity = json::array();
+  for (const auto& s : fit.sensitivity) {
+    sensitivity.push_back({{"name", s.name}, {"peak_pct_minus10", s.peak_pct_minus10}, {"peak_pct_plus10", s.peak_pct_plus10}});
+  }
+  json loo = json::array();
+  for (const auto& l : fit.leave_one_out) {
+    json p = json::object();
+    for (const auto& [name, value] : named_parameters(fit.model, l.params)) p[name] = value;
+    loo.push_back({{"held_out", l.held_out},
+                   {"parameters", p},
+                   {"rms_force_pct_peak", number_or_null(l.comparison.rms_force_pct_peak)},
+                   {"peak_force_pct_diff", number_or_null(l.comparison.peak_force_pct_diff)}});
+  }
+  json doc = {{"model", fitting::model_name(fit.model)},
+              {"train", fit.train_ids},
+              {"impactor_mass_kg", impactor_mass_kg},
+              {"parameters", parameters},
+              {"estimates", estimates},
+              {"trials", trials},
+              {"sensitivity", sensitivity},
+              {"leave_one_out", loo},
+              {"warnings", fit.warnings},
+              {"optimizer", fit.optimizer},
+              {"evaluations", fit.evaluations},
+              {"seconds", fit.seconds}};
+  return doc.dump(2) + "\n";
+}
+
+std::string fit_series_csv(const fitting::TrialData& measured, const fitting::TrialReport& report) {
+  std::string out =
+      "t_s,measured_fz_n,simulated_fz_n,measured_impactor_m,simulated_impactor_m,measured_surface_m,simulated_surface_m\n";
+  const auto& sim = report.simulation;
+  const Eigen::Index n = std::min<Eigen::Index>(measured.t_s.size(), sim.t_s.size());
+  auto at = [](const Eigen::VectorXd& v, Eigen::Index i) { return i < v.size() ? v[i] : NAN; };
+  for (Eigen::Index i = 0; i < n; ++i) {
+    out += fmt::format("{},{},{},{},{},{},{}\n", csv_number(measured.t_s[i]), csv_number(measured.grf_n[i]),
+                       csv_number(sim.grf_n[i]), csv_number(at(measured.impactor_m, i)), csv_number(sim.impactor_m[i]),
+                       csv_number(at(measured.surface_m, i)), csv_number(sim.surface_m[i]));
   }
   return out;
 }

@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "calibration/calibration.h"
+#include "fitting/fit.h"
 #include "fitting/models.h"
 #include "reconstruction/reconstruction.h"
 #include "trial/trial.h"
@@ -32,6 +33,14 @@ std::string series_csv(const trial::Series& series);
 // trial,accepted,impact_velocity_m_s,impact_velocity_ci_m_s,max_deformation_m,
 // peak_force_n,time_to_peak_s,tilt_deg,video_offset_ms,reject_reason
 std::string summary_csv(const std::vector<trial::TrialResult>& trials);
+
+// OUT/fit.json: the model, training trials, canonical parameters (named with
+// units, report/export.h) and per-trial errors as in the spec, plus standard
+// errors, identifiability warnings, key characteristics and sensitivity.
+std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg);
+// Measured and simulated series of one trial from contact:
+// t_s,measured_fz_n,simulated_fz_n,measured_impactor_m,simulated_impactor_m,measured_surface_m,simulated_surface_m
+std::string fit_series_csv(const fitting::TrialData& measured, const fitting::TrialReport& report);
 
 // A simulated impact: t_s,grf_n,impactor_m,surface_m.
 std::string simulation_csv(const fitting::Simulation& sim);
