@@ -4,38 +4,132 @@
 // the file, line, column and field on anything malformed or missing.
 // Writers produce exactly what the readers accept (the sample generator
 // uses them); they write each file whole (temporary name, then rename).
+//
+// Conventions shared by all readers:
+// - Lines and columns are 1-based. In CSV and tab-separated files the column
+//   is the character position where the offending field starts; in
+//   session.toml it is the position of the key or value (from toml++).
+//   Line 0 means the file as a whole.
+// - Numbers are parsed strictly (std::from_chars on the whole field, blanks
+//   around it allowed): "1.2x", "1,2" or an empty field where a number is
+//   required is an error. Infinite values are always errors.
+// - Nothing is ever written by a reader.
 #include <string>
+#include <vector>
 
 #include "capture/session.h"
 
 namespace dropfit::capture {
 
-// session.toml. Unknown keys are an error naming the key.
+// session.toml. Unknown keys are an error naming the key (dotted, e.g.
+// "mat.layers[1].thickness_m", array indices 0-based) and its line.
+// Required: impactor.{mass_kg, footprint_m, base_markers},
+//   mat.{length_m, width_m, surface_markers, layers (at least one; each with
+//   name, thickness_m, mass_kg)}, video.{cameras, frame_rate_hz, points,
+//   trigger_frame}, forceplate.{sample_rate_hz, trigger_threshold_n,
+//   pretrigger_fraction, a_m, b_m, az0_m, mat_top_z_m}, and at least one
+//   [[trial]] with id and dir.
+// Optional (default): session.name (""), session.gravity_m_s2 (9.81),
+//   impactor.base_marker_height_m (0), forceplate.model (""),
+//   video.image_origin ("top-left"), video.image_height_px (required with
+//   "bottom-left").
+// Checked: masses, lengths, thicknesses, rates, gravity, footprint, trigger
+//   threshold, a_m, b_m and image_height_px positive (layer masses may be
+//   zero); pretrigger_fraction in [0, 1); trigger_frame an integer >= 0;
+//   cameras and points non-empty lists of unique non-empty names (cameras
+//   also name files, so no '/' or '\\'); base_markers (non-empty) and
+//   surface_markers are names in video.points; trial ids unique and non-empty,
+//   dirs non-empty and relative.
 Manifest read_manifest(const std::string& path);
 
+// calibration/frame.csv: header id,x_m,y_m,z_m,role (any order, no other
+// columns), ids unique and non-empty, role "fit" or "check", at least one row.
 std::vector<CalibrationMarker> read_frame_csv(const std::string& path);
-// Checks every id against `frame` (an id not in frame.csv is an error).
+// calibration/<camera>.csv: header id,u_px,v_px (any order). Checks every id
+// against `frame` (an id not in frame.csv is an error naming it) and rejects
+// duplicate ids. A camera may see any subset of the markers.
 CalibrationImage read_camera_csv(const std::string& path, const std::string& camera,
                                  const std::vector<CalibrationMarker>& frame);
 
-// xypts.csv in any of the three layouts (DLTdv 8.3 ptK_camN_X, DLTdv 8.4+
-// NAME_camN_U, Argus NAME_cam_N_x); converted to a top-left origin.
+// xypts.csv in any of the three layouts, told apart by the header:
+//   DLTdv 8.3   ptK_camN_X, ptK_camN_Y   (K 1-based index into video.points)
+//   DLTdv 8.4+  NAME_camN_U, NAME_camN_V (NAME from video.points)
+//   Argus       NAME_cam_N_x, NAME_cam_N_y
+// N is the 1-based index into video.cameras. Columns may come in any order;
+// one file uses one layout. The result is in the DLTdv column order of
+// MarkerTracks2D (points and cameras in manifest order). An empty field or
+// NaN (any case) is a missing measurement and stays NaN, never 0.
+// A point or camera in the header that the manifest does not name is an
+// error; a manifest point (or point/camera pair) absent from the file is
+// all-NaN, i.e. never digitised. An X column without its Y (or U/V, x/y) is
+// an error. video.trigger_frame must be a row of the file.
+//
+// Image origin: the result is top-left, v downwards. With
+// video.image_origin == BottomLeft the file's v is measured upwards from the
+// bottom edge and is converted as v_top = image_height_px - v_file. Both
+// systems are continuous coordinates measured from the image's outer edges
+// (pixel corners, so the image spans [0, image_height_px] in v either way);
+// the flip is exact for that convention. A file whose bottom-left
+// coordinates put pixel centres at integers (MATLAB, 1-based) differs by a
+// constant offset of at most one pixel, absorbed by the DLT calibration as
+// long as the calibration images were digitised the same way.
 MarkerTracks2D read_xypts(const std::string& path, const VideoSpec& video);
 
-// force.txt in either layout (Kistler eight-channel or BioWare resultants).
+// force.txt in either layout, told apart by the column header:
+// - Kistler eight-channel: key<TAB>value header lines ("Sample rate",
+//   "Samples", "Pretrigger samples" required; "Device", "Trigger" optional;
+//   other keys ignored), a blank line, the column header "Time(s)" then Fx12
+//   Fx34 Fy14 Fy23 Fz1 Fz2 Fz3 Fz4 in any order (a missing channel is an
+//   error naming it; other columns are ignored), then exactly "Samples" data
+//   rows. t_s is the file's time column, which must read 0 (within half a
+//   sample) at row "Pretrigger samples": the trigger sample.
+// - BioWare resultants: free header lines, one of them "Rate (Hz):<TAB>R", a
+//   column header beginning "abs time" naming Fx Fy Fz Mx My Mz Ax Ay (any
+//   order, more may follow), one units line (forces N; moments N.m/Nm/N m;
+//   Ax, Ay mm or m, converted to m), then the data. The file has no trigger
+//   mark, so the trigger sample is taken from the manifest:
+//   pretrigger_samples = trigger_sample_from_fraction(plate.pretrigger_fraction, n)
+//   and t_s[i] = abs_time[i] - abs_time[pretrigger_samples], i.e. t = 0 at
+//   the trigger sample as for the eight-channel layout. Ax, Ay may be NaN
+//   (centre of pressure undefined while unloaded); nothing else may.
+// For both: the sample rate must equal plate.sample_rate_hz (relative 1e-6);
+// time steps must be uniform (each step within a quarter sample plus the
+// printed time resolution of 1 / rate, and no drift over the record).
 ForceRecord read_force(const std::string& path, const ForcePlateSpec& plate);
 
-// The whole session folder: manifest, calibration, every trial.
+// Index of the trigger sample in a record of n samples of which a share
+// `pretrigger_fraction` precedes it: round(fraction * n) (halves away from 0).
+int trigger_sample_from_fraction(double pretrigger_fraction, int n_samples);
+
+// The whole session folder: session.toml, calibration/frame.csv,
+// calibration/<camera>.csv for each manifest camera (images in manifest
+// order), and each trial's <dir>/xypts.csv and <dir>/force.txt. A missing
+// file is an InputError naming it. Reads only; never writes.
 Session read_session(const std::string& root);
 
 // Writers (top-left origin, DLTdv 8.3 layout unless asked otherwise).
+// Formats: metres and other manifest values at full precision (shortest
+// round-trip), frame.csv metres %.9g, pixels and forces %.6f, times %.6f s,
+// missing pixels "NaN". Failures to write throw dropfit::Error; a writer
+// leaves no partial file behind.
 enum class XyptsLayout { Dltdv83, Dltdv84, Argus };
 void write_manifest(const std::string& path, const Manifest& manifest);
 void write_frame_csv(const std::string& path, const std::vector<CalibrationMarker>& frame);
 void write_camera_csv(const std::string& path, const CalibrationImage& image);
+// BottomLeft writes v_file = image_height_px - v (image_height_px > 0 needed).
 void write_xypts(const std::string& path, const MarkerTracks2D& tracks, XyptsLayout layout = XyptsLayout::Dltdv83,
                  ImageOrigin origin = ImageOrigin::TopLeft, double image_height_px = 0.0);
-void write_force(const std::string& path, const ForceRecord& record);
-void write_session(const std::string& root, const Session& session);
+// Eight-channel: the record's t_s as the time column (t_s at
+// pretrigger_samples must be 0), `device` on the Device line ("unknown" when
+// empty). Resultants: BioWare layout, abs time = t_s - t_s[0], Ax/Ay in mm;
+// its trigger sample on reading comes from the manifest (see read_force).
+void write_force(const std::string& path, const ForceRecord& record, const std::string& device = "");
+// Creates root, calibration/ and each trial folder, then writes every file.
+// The xypts origin follows manifest.video.image_origin. Throws
+// dropfit::Error if the session is inconsistent (an image missing for a
+// manifest camera, trials not matching manifest.trials, tracks' points or
+// cameras not those of the manifest, a BioWare record whose
+// pretrigger_samples differs from the manifest's fraction).
+void write_session(const std::string& root, const Session& session, XyptsLayout layout = XyptsLayout::Dltdv83);
 
 }  // namespace dropfit::capture

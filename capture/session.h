@@ -112,7 +112,8 @@ struct ForceRecord {
   double sample_rate_hz = 0.0;
   int pretrigger_samples = 0;   // from the header (eight-channel) or the manifest share
   std::string trigger;          // header text, e.g. "Fz > 25 N"; may be empty
-  Eigen::VectorXd t_s;          // as in the file (trigger at 0 for eight-channel; absolute for BioWare)
+  Eigen::VectorXd t_s;          // 0 at the trigger sample: the file's times (eight-channel), or the
+                                // absolute times minus that of sample pretrigger_samples (BioWare)
   // EightChannel: columns Fx12 Fx34 Fy14 Fy23 Fz1 Fz2 Fz3 Fz4 in newtons.
   // Resultants: columns Fx Fy Fz (N) Mx My Mz (N m) Ax Ay (m, converted from mm).
   Eigen::MatrixXd data;
