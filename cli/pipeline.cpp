@@ -2,9 +2,15 @@
 
 #include "report/results.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
+#include <atomic>
+#include <optional>
+#include <thread>
 #include <cmath>
 
+#include "capture/io.h"
 #include "core/error.h"
 
 namespace dropfit::pipeline {
@@ -187,6 +193,107 @@ void add_fit_outputs(report::OutputSet& out, const std::string& prefix, const fi
       if (data.id == report.id) out.add(prefix + "series/" + data.id + ".csv", report::fit_series_csv(data, report));
     }
   }
+}
+
+report::MatGeometry mat_geometry(const Manifest& manifest) {
+  report::MatGeometry geometry;
+  geometry.length_m = manifest.mat.length_m;
+  geometry.width_m = manifest.mat.width_m;
+  const auto& layers = manifest.mat.layers;
+  if (layers.size() >= 2) {
+    geometry.bottom_thickness_m = layers.back().thickness_m;
+    geometry.top_thickness_m = manifest.mat.thickness_m() - layers.back().thickness_m;
+  }
+  return geometry;
+}
+
+RunSummary run_session(const std::string& session_dir, const RunOptions& options, report::OutputSet& out,
+                       Progress* progress) {
+  auto say = [&](const std::string& stage, const std::string& detail = "") {
+    if (progress) progress->update(stage, detail);
+  };
+  say("reading", session_dir);
+  const Session session = capture::read_session(session_dir);
+  RunSummary summary;
+  summary.session = session.manifest.name.empty() ? session_dir : session.manifest.name;
+
+  say(summary.session, "calibrating");
+  const auto calibration = calibrate_session(session);
+  add_calibration_outputs(out, calibration);
+  const auto cameras = cameras_of(calibration);
+
+  std::vector<trial::TrialResult> results;
+  std::vector<fitting::TrialData> fit_data;
+  for (size_t i = 0; i < session.trials.size(); ++i) {
+    const auto& trial = session.trials[i];
+    say(summary.session, fmt::format("trial {} ({}/{})", trial.spec.id, i + 1, session.trials.size()));
+    auto outcome = process_trial(session.manifest, trial, cameras);
+    add_trial_outputs(out, outcome);
+    fit_data.push_back(fitting_trial(session.manifest, outcome.result));
+    summary.accepted += outcome.result.accepted ? 1 : 0;
+    results.push_back(std::move(outcome.result));
+  }
+  summary.trials = static_cast<int>(results.size());
+  out.add("summary.csv", report::summary_csv(results));
+
+  report::SessionReport rep;
+  rep.session_name = summary.session;
+  rep.session_path = session_dir;
+  rep.calibration = &calibration;
+  rep.trials = results;
+  rep.fit_data = fit_data;
+
+  if (summary.accepted == 0) {
+    summary.notes.push_back("no accepted trial: nothing to fit");
+  } else {
+    std::vector<std::optional<fitting::FitResult>> fits(options.models.size());
+    std::vector<std::string> errors(options.models.size());
+    auto fit_one = [&](size_t k) {
+      try {
+        fits[k] = fitting::fit(fit_data, fit_options(session.manifest, options.models[k]));
+      } catch (const std::exception& e) {
+        errors[k] = e.what();
+      }
+    };
+    std::vector<std::thread> workers;
+    std::atomic<size_t> next{0};
+    const int threads = std::max(1, std::min<int>(options.threads, static_cast<int>(options.models.size())));
+    for (int w = 0; w < threads; ++w) {
+      workers.emplace_back([&] {
+        for (size_t k; (k = next++) < options.models.size();) {
+          say(summary.session, "fitting " + fitting::model_name(options.models[k]));
+          fit_one(k);
+        }
+      });
+    }
+    for (auto& w : workers) w.join();
+    for (size_t k = 0; k < options.models.size(); ++k) {
+      const auto name = fitting::model_name(options.models[k]);
+      if (!fits[k]) {
+        summary.notes.push_back(fmt::format("{} fit failed: {}", name, errors[k]));
+        continue;
+      }
+      add_fit_outputs(out, "fits/" + name + "/", *fits[k], fit_data, session.manifest.impactor.mass_kg);
+      if (options.models[k] == fitting::ModelKind::Model4) {
+        add_fit_outputs(out, "", *fits[k], fit_data, session.manifest.impactor.mass_kg);
+      }
+      if (options.models[k] == fitting::ModelKind::Model3 || options.models[k] == fitting::ModelKind::Model4) {
+        out.add("mat_" + name + ".mjcf.xml",
+                report::mjcf_xml(options.models[k], fits[k]->params, mat_geometry(session.manifest)));
+      }
+      for (const auto& w : fits[k]->warnings) summary.notes.push_back(name + ": " + w);
+      rep.fits.push_back(std::move(*fits[k]));
+    }
+  }
+
+  for (const auto& r : results) {
+    if (!r.accepted) summary.notes.push_back(fmt::format("trial {} rejected: {}", r.id, r.reject_reason));
+  }
+  rep.notes = summary.notes;
+  say(summary.session, "report");
+  out.add("report.html", report::session_report_html(rep));
+  if (progress) progress->done();
+  return summary;
 }
 
 fitting::Simulation simulate_fitted(const report::FitFile& fit, const fitting::Impact& impact,

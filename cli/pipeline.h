@@ -12,7 +12,9 @@
 #include "fitting/model5.h"
 #include "fitting/models.h"
 #include "report/export.h"
+#include "core/progress.h"
 #include "report/output.h"
+#include "report/session_report.h"
 #include "trial/trial.h"
 
 namespace dropfit::pipeline {
@@ -66,6 +68,29 @@ fitting::FitOptions fit_options(const Manifest& manifest, fitting::ModelKind mod
 // series of every trial, under `prefix` ("" or "fits/model3/").
 void add_fit_outputs(report::OutputSet& out, const std::string& prefix, const fitting::FitResult& fit,
                      const std::vector<fitting::TrialData>& trials, double impactor_mass_kg);
+
+// The mat's layers as the MJCF export takes them (top = all but the last).
+report::MatGeometry mat_geometry(const Manifest& manifest);
+
+// The main run of one session: calibrate, process every trial, fit every
+// model, close the loop, write the report. Results go into `out` (nothing
+// is written here). Throws dropfit::Error when the session as a whole
+// cannot be processed (unreadable, no calibration); a bad trial is
+// rejected with its reason and the rest goes on.
+struct RunOptions {
+  std::vector<fitting::ModelKind> models = {fitting::ModelKind::Model1, fitting::ModelKind::Model2,
+                                            fitting::ModelKind::Model3, fitting::ModelKind::Model4,
+                                            fitting::ModelKind::Model5};
+  bool diagnose = true;
+  int threads = 1;  // models fitted in parallel
+};
+struct RunSummary {
+  std::string session;
+  int trials = 0, accepted = 0;
+  std::vector<std::string> notes;
+};
+RunSummary run_session(const std::string& session_dir, const RunOptions& options, report::OutputSet& out,
+                       Progress* progress = nullptr);
 
 // Simulates an impact with a fitted parameter file's model (Models 1-5;
 // Model 5 with its default geometry).

@@ -1,0 +1,93 @@
+// dropfit run SESSION... --out DIR
+// Calibrate, process trials, fit all models, close the loop, report.
+// Several sessions are processed in parallel where the machine allows; a
+// failing session is reported and the others still run.
+#include <fmt/format.h>
+
+#include <atomic>
+#include <chrono>
+#include <filesystem>
+#include <mutex>
+#include <thread>
+
+#include "cli/command.h"
+#include "cli/pipeline.h"
+#include "core/progress.h"
+
+namespace dropfit::cli {
+namespace {
+
+void add_run(CLI::App& app, CommandContext& ctx) {
+  struct Args {
+    std::vector<std::string> sessions;
+    std::string out;
+    std::string models = "all";
+    bool no_diagnose = false;
+    int jobs = 0;
+  };
+  auto args = std::make_shared<Args>();
+  auto* sub = app.add_subcommand("run", "the main job: calibrate, process, fit all models, close the loop, report");
+  sub->add_option("sessions", args->sessions, "session folder(s)")->required()->check(CLI::ExistingDirectory);
+  sub->add_option("--out", args->out, "output folder (one sub-folder per session when several)")->required();
+  sub->add_option("--jobs", args->jobs, "parallel workers (default: the machine's cores)")->check(CLI::NonNegativeNumber);
+  sub->add_flag("--no-diagnose", args->no_diagnose, "skip closing the loop");
+  sub->callback([args, &ctx] {
+    namespace fs = std::filesystem;
+    const auto start = std::chrono::steady_clock::now();
+    const int cores = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+    const int jobs = args->jobs > 0 ? args->jobs : cores;
+    const size_t n = args->sessions.size();
+
+    pipeline::RunOptions options;
+    options.diagnose = !args->no_diagnose;
+    // One session: its models in parallel. Several: sessions in parallel.
+    options.threads = n == 1 ? jobs : 1;
+
+    Progress progress;
+    std::vector<std::string> out_dirs(n), errors(n);
+    std::vector<pipeline::RunSummary> summaries(n);
+    std::vector<bool> ok(n, false);
+    // Session names must not collide when several go under one folder.
+    for (size_t i = 0; i < n; ++i) {
+      out_dirs[i] = n == 1 ? args->out : (fs::path(args->out) / fs::path(args->sessions[i]).filename()).string();
+    }
+    std::atomic<size_t> next{0};
+    std::vector<std::thread> workers;
+    for (int w = 0; w < std::min<int>(jobs, static_cast<int>(n)); ++w) {
+      workers.emplace_back([&] {
+        for (size_t i; (i = next++) < n;) {
+          try {
+            report::OutputSet out;
+            summaries[i] = pipeline::run_session(args->sessions[i], options, out, &progress);
+            std::vector<std::string> protected_dirs(args->sessions.begin(), args->sessions.end());
+            out.commit(out_dirs[i], protected_dirs);
+            ok[i] = true;
+          } catch (const std::exception& e) {
+            errors[i] = e.what();
+          }
+        }
+      });
+    }
+    for (auto& w : workers) w.join();
+    progress.done();
+
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    int failed = 0;
+    for (size_t i = 0; i < n; ++i) {
+      if (!ok[i]) {
+        ++failed;
+        fmt::print(stderr, "dropfit: error: session {}: {}\n", args->sessions[i], errors[i]);
+        continue;
+      }
+      const auto& s = summaries[i];
+      fmt::print("{}: {} of {} trials accepted; report {}/report.html\n", s.session, s.accepted, s.trials, out_dirs[i]);
+      for (const auto& note : s.notes) fmt::print("  note: {}\n", note);
+    }
+    fmt::print("{} session(s) in {:.1f} s; {} failed\n", n, seconds, failed);
+    ctx.exit_code = failed > 0 ? 1 : 0;
+  });
+}
+
+}  // namespace
+DROPFIT_COMMAND(5, add_run);
+}  // namespace dropfit::cli

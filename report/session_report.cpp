@@ -1,0 +1,247 @@
+#include "report/session_report.h"
+
+#include <fmt/format.h>
+
+#include <cmath>
+
+#include "report/export.h"
+#include "report/html.h"
+#include "report/plot.h"
+
+namespace dropfit::report {
+namespace {
+
+std::string num(double v, int decimals) {
+  if (!std::isfinite(v)) return "-";
+  return fmt::format("{:.{}f}", v, decimals);
+}
+
+std::vector<double> to_vector(const Eigen::VectorXd& v, double scale = 1.0) {
+  std::vector<double> out(static_cast<size_t>(v.size()));
+  for (Eigen::Index i = 0; i < v.size(); ++i) out[static_cast<size_t>(i)] = v[i] * scale;
+  return out;
+}
+
+const char* kModelColours[] = {"#ff7f0e", "#2ca02c", "#9467bd", "#d62728", "#1f77b4"};
+
+void summary_section(HtmlDocument& doc, const SessionReport& r) {
+  doc.heading("Session summary");
+  std::vector<std::vector<std::string>> rows;
+  int accepted = 0;
+  for (const auto& t : r.trials) {
+    accepted += t.accepted ? 1 : 0;
+    rows.push_back({t.id, fmt::format("{} ± {}", num(t.impact_velocity_m_s, 2), num(t.impact_velocity_ci_m_s, 3)),
+                    num(t.max_deformation_m, 3), num(t.peak_force_n, 0), num(t.time_to_peak_s * 1e3, 1),
+                    num(t.tilt_deg, 1), num(t.video_offset_s * 1e3, 2),
+                    t.accepted ? "accepted" : "rejected: " + t.reject_reason});
+  }
+  doc.paragraph(fmt::format("{} trials, {} accepted. Rejected trials are listed with their reason, never dropped.",
+                            r.trials.size(), accepted));
+  doc.table({"trial", "impact velocity (m/s, 95 % CI)", "max deformation (m)", "peak force (N)",
+             "time to peak (ms)", "tilt (deg)", "video - force clock (ms)", "status"},
+            rows, "Vertical drop test results (the shape of the paper's Table 1)", 1);
+}
+
+void calibration_section(HtmlDocument& doc, const calibration::CalibrationResult& c) {
+  doc.heading("Calibration accuracy");
+  std::vector<std::vector<std::string>> cams;
+  for (const auto& fit : c.cameras) {
+    cams.push_back({fit.camera.name, std::to_string(fit.n_fit_points), num(fit.fit_rms_px, 3),
+                    fit.camera.distortion.empty() ? "dlt11" : "dlt16"});
+  }
+  doc.table({"camera", "fit markers", "reprojection RMS (px)", "model"}, cams, "Cameras", 1);
+  doc.paragraph(fmt::format("Check markers (held out of the fit): RMS x {} mm, y {} mm, z {} mm; largest {} mm.",
+                            num(c.check_rms_m.x() * 1e3, 2), num(c.check_rms_m.y() * 1e3, 2),
+                            num(c.check_rms_m.z() * 1e3, 2), num(c.check_max_m * 1e3, 2)));
+  if (!c.check_points.empty()) {
+    BarPlot plot{"Check-marker reconstruction error", "error (mm)", {}, {}, 720, 300};
+    BarGroup gx{"x", {}, "#1f77b4"}, gy{"y", {}, "#2ca02c"}, gz{"z", {}, "#d62728"};
+    for (const auto& p : c.check_points) {
+      plot.categories.push_back(p.id);
+      gx.values.push_back(p.error_m.x() * 1e3);
+      gy.values.push_back(p.error_m.y() * 1e3);
+      gz.values.push_back(p.error_m.z() * 1e3);
+    }
+    plot.groups = {gx, gy, gz};
+    doc.figure(svg(plot), "Reconstructed minus known position of each check marker, per lab axis.");
+  }
+  if (!c.cameras.empty() && !c.cameras.front().residuals_px.empty()) {
+    BarPlot plot{"Reprojection residual of the fit markers", "residual (px)", {}, {}, 720, 300};
+    for (size_t k = 0; k < c.cameras.size(); ++k) {
+      BarGroup g{c.cameras[k].camera.name, {}, ""};
+      for (size_t i = 0; i < c.cameras[k].residuals_px.size(); ++i) {
+        if (k == 0) plot.categories.push_back(std::to_string(i + 1));
+        g.values.push_back(c.cameras[k].residuals_px[i].norm());
+      }
+      plot.groups.push_back(g);
+    }
+    doc.figure(svg(plot), "Length of the reprojection residual of each fit marker, per camera.");
+  }
+  if (!c.leave_one_out.empty()) {
+    BarPlot plot{"Leave-one-out residual of the fit markers", "3-D error (mm)", {}, {}, 720, 300};
+    BarGroup g{"left out", {}, "#8c564b"};
+    for (const auto& l : c.leave_one_out) {
+      plot.categories.push_back(l.id);
+      g.values.push_back(l.residual_m * 1e3);
+    }
+    plot.groups = {g};
+    doc.figure(svg(plot), "Each fit marker reconstructed by cameras calibrated without it; a mislabelled marker stands out.");
+  }
+  for (const auto& id : c.outliers) doc.note(fmt::format("Calibration marker {} stands out: check its label and digitising.", id));
+}
+
+const fitting::TrialReport* find_report(const fitting::FitResult& fit, const std::string& id) {
+  for (const auto& t : fit.trials) {
+    if (t.id == id) return &t;
+  }
+  return nullptr;
+}
+
+void trials_section(HtmlDocument& doc, const SessionReport& r) {
+  doc.heading("Ground reaction force per trial");
+  doc.paragraph("Measured vertical ground reaction force with each fitted model overlaid (the paper's Figures 3 to 7). "
+                "Models were trained on the trials marked 'train' and predict the others from their own impact velocity.");
+  for (const auto& data : r.fit_data) {
+    doc.heading(fmt::format("Trial {} ({} m/s)", data.id, num(data.impact_velocity_m_s, 2)), 3);
+    LinePlot force{fmt::format("Trial {}: vertical ground reaction force", data.id), "time from contact (ms)",
+                   "force (N)", {}, 720, 360};
+    force.series.push_back({"measured", to_vector(data.t_s, 1e3), to_vector(data.grf_n), "#111827", false, false});
+    LinePlot travel{fmt::format("Trial {}: impactor travel below the mat top", data.id), "time from contact (ms)",
+                    "travel (mm)", {}, 720, 300};
+    travel.series.push_back({"measured", to_vector(data.t_s, 1e3), to_vector(data.impactor_m, 1e3), "#111827", false, false});
+    std::vector<std::vector<std::string>> rows;
+    bool first = true;
+    for (const auto& fit : r.fits) {
+      const auto* t = find_report(fit, data.id);
+      if (!t) continue;
+      const auto model = static_cast<int>(fit.model);
+      const char* colour = kModelColours[(model - 1) % 5];
+      const std::string label = fmt::format("model {}{}", model, t->train ? " (train)" : "");
+      force.series.push_back({label, to_vector(t->simulation.t_s, 1e3), to_vector(t->simulation.grf_n), colour, true, false});
+      travel.series.push_back(
+          {label, to_vector(t->simulation.t_s, 1e3), to_vector(t->simulation.impactor_m, 1e3), colour, true, false});
+      if (first) {
+        const auto& m = t->measured;
+        rows.push_back({"measured", num(m.first_peak_n, 0), num(m.first_peak_s * 1e3, 1), num(m.min_between_n, 0),
+                        num(m.min_between_s * 1e3, 1), num(m.second_peak_n, 0), num(m.second_peak_s * 1e3, 1),
+                        num(m.max_loading_rate_n_s / 1e3, 0), num(m.peak_force_n, 0), "", ""});
+        first = false;
+      }
+      const auto& s = t->simulated;
+      rows.push_back({label, num(s.first_peak_n, 0), num(s.first_peak_s * 1e3, 1), num(s.min_between_n, 0),
+                      num(s.min_between_s * 1e3, 1), num(s.second_peak_n, 0), num(s.second_peak_s * 1e3, 1),
+                      num(s.max_loading_rate_n_s / 1e3, 0), num(s.peak_force_n, 0),
+                      num(t->comparison.rms_force_pct_peak, 1), num(t->comparison.peak_force_pct_diff, 1)});
+    }
+    doc.figure(svg(force), fmt::format("Trial {}: measured force and the models.", data.id));
+    doc.figure(svg(travel), fmt::format("Trial {}: impactor face travel, measured (video) and simulated.", data.id));
+    doc.table({"", "1st peak (N)", "at (ms)", "minimum (N)", "at (ms)", "2nd peak (N)", "at (ms)",
+               "max loading rate (kN/s)", "peak (N)", "RMS (% peak)", "peak diff (%)"},
+              rows, "Key characteristics", 1);
+  }
+}
+
+void parameters_section(HtmlDocument& doc, const SessionReport& r) {
+  if (r.fits.empty()) return;
+  doc.heading("Fitted parameters");
+  const std::vector<std::string> names = {"k1_n_m", "k2_n_m", "k3_n_m", "r1_n_s_m", "r2_n_s_m", "r3_n_s_m",
+                                          "m_eff_kg", "m1_kg", "m2_kg"};
+  std::vector<std::string> header = {"parameter"};
+  for (const auto& fit : r.fits) header.push_back(fmt::format("Model {}", static_cast<int>(fit.model)));
+  std::vector<std::vector<std::string>> rows;
+  for (const auto& name : names) {
+    std::vector<std::string> row = {name};
+    bool any = false;
+    for (const auto& fit : r.fits) {
+      std::string cell = "-";
+      for (const auto& e : fit.estimates) {
+        if (e.name != name) continue;
+        any = true;
+        cell = std::isfinite(e.se) && e.free ? fmt::format("{:.4g} ± {:.2g}", e.value, e.se) : fmt::format("{:.4g}", e.value);
+        if (!e.identifiable) cell += " (not identified)";
+      }
+      row.push_back(cell);
+    }
+    if (any) rows.push_back(row);
+  }
+  doc.table(header, rows, "Stiffness (N/m), damping (N s/m) and masses (kg) with standard errors (the shape of the paper's Table 2)", 1);
+  for (const auto& fit : r.fits) {
+    for (const auto& w : fit.warnings) doc.note(fmt::format("Model {}: {}", static_cast<int>(fit.model), w));
+  }
+
+  doc.heading("Predictions across trials", 3);
+  std::vector<std::string> h2 = {"trial"};
+  for (const auto& fit : r.fits) {
+    h2.push_back(fmt::format("M{} RMS (% peak)", static_cast<int>(fit.model)));
+    h2.push_back(fmt::format("M{} peak diff (%)", static_cast<int>(fit.model)));
+  }
+  std::vector<std::vector<std::string>> rows2;
+  for (const auto& data : r.fit_data) {
+    std::vector<std::string> row = {data.id};
+    for (const auto& fit : r.fits) {
+      const auto* t = find_report(fit, data.id);
+      row.push_back(t ? num(t->comparison.rms_force_pct_peak, 1) + (t->train ? " (train)" : "") : "-");
+      row.push_back(t ? num(t->comparison.peak_force_pct_diff, 1) : "-");
+    }
+    rows2.push_back(row);
+  }
+  doc.table(h2, rows2, "Simulated minus measured, each trial predicted from its own impact velocity", 1);
+
+  for (const auto& fit : r.fits) {
+    if (fit.sensitivity.empty()) continue;
+    std::vector<std::vector<std::string>> rows3;
+    for (const auto& s : fit.sensitivity) rows3.push_back({s.name, num(s.peak_pct_minus10, 2), num(s.peak_pct_plus10, 2)});
+    doc.table({"parameter", "-10 % (peak change %)", "+10 % (peak change %)"}, rows3,
+              fmt::format("Sensitivity of the peak force, Model {}", static_cast<int>(fit.model)), 1);
+  }
+}
+
+void loop_section(HtmlDocument& doc, const SessionReport& r) {
+  if (!r.loop_run) return;
+  doc.heading("Closing the loop");
+  doc.paragraph(fmt::format(
+      "Each stage's residual was tested for structure and traced to the effect that explains it; an effect is kept "
+      "only when the held-out error drops by more than noise would explain. Baseline mat model: {}.",
+      r.loop_baseline_model));
+  if (r.loop_effects.empty()) doc.paragraph("No effect was added: the residuals show no structure the library explains.");
+  std::vector<std::vector<std::string>> rows;
+  BarPlot plot{"Error before and after each added effect", "error", {}, {}, 720, 320};
+  BarGroup before{"before", {}, "#9ca3af"}, after{"after", {}, "#059669"};
+  for (const auto& e : r.loop_effects) {
+    std::string b, a;
+    for (const auto& [k, v] : e.error_before) b += fmt::format("{} {:.3g}; ", k, v);
+    for (const auto& [k, v] : e.error_after) a += fmt::format("{} {:.3g}; ", k, v);
+    rows.push_back({e.stage, e.name, e.evidence, b, a});
+    if (!e.error_before.empty() && !e.error_after.empty()) {
+      plot.categories.push_back(e.name + " (" + e.error_before.front().first + ")");
+      before.values.push_back(e.error_before.front().second);
+      after.values.push_back(e.error_after.front().second);
+    }
+  }
+  if (!rows.empty()) doc.table({"stage", "effect", "evidence", "error before", "error after"}, rows, "Effects added", 3);
+  if (!plot.categories.empty()) {
+    plot.groups = {before, after};
+    doc.figure(svg(plot), "The first error measure of each effect, before and after it was added.");
+  }
+  if (r.loop_unexplained) {
+    doc.note("Structured residual remains that no known effect explains (unexplained = true).");
+  }
+}
+
+}  // namespace
+
+std::string session_report_html(const SessionReport& r) {
+  HtmlDocument doc("dropfit report: " + r.session_name);
+  doc.paragraph(fmt::format("Session folder: {}. Drop tests of the impactor on the landing mat, processed from the raw "
+                            "files; models after Mills, Pain & Yeadon (2006).",
+                            r.session_path));
+  for (const auto& n : r.notes) doc.note(n);
+  summary_section(doc, r);
+  if (r.calibration) calibration_section(doc, *r.calibration);
+  trials_section(doc, r);
+  parameters_section(doc, r);
+  loop_section(doc, r);
+  return doc.str();
+}
+
+}  // namespace dropfit::report

@@ -1,0 +1,39 @@
+#pragma once
+// The HTML report of one session: what a biomechanist reads instead of the
+// JSON. Sections follow the paper: the session summary (Table 1's shape),
+// calibration accuracy, per trial the measured ground reaction force with
+// each model overlaid (Figures 3-7) and the key characteristics, the fitted
+// parameters with uncertainties (Table 2's shape), predictions across
+// trials, sensitivity, and closing the loop.
+#include <string>
+#include <vector>
+
+#include "calibration/calibration.h"
+#include "fitting/fit.h"
+#include "trial/trial.h"
+
+namespace dropfit::report {
+
+struct LoopEffect {  // one effect closing the loop added
+  std::string stage, name, evidence;
+  std::vector<std::pair<std::string, double>> error_before, error_after;
+};
+
+struct SessionReport {
+  std::string session_name;
+  std::string session_path;
+  const calibration::CalibrationResult* calibration = nullptr;
+  std::vector<trial::TrialResult> trials;
+  std::vector<fitting::TrialData> fit_data;   // the fitter's view of each trial (measured)
+  std::vector<fitting::FitResult> fits;       // one per model, in model order
+  // Closing the loop (empty when not run).
+  bool loop_run = false;
+  std::string loop_baseline_model;
+  std::vector<LoopEffect> loop_effects;
+  bool loop_unexplained = false;
+  std::vector<std::string> notes;             // anything the reader must know (failures, warnings)
+};
+
+std::string session_report_html(const SessionReport& report);
+
+}  // namespace dropfit::report
