@@ -1,1 +1,376 @@
-// Placeholder: implemented by the stage's work.
+// Model 5, the geometric, area-elastic mat: see model5.h for the model, its
+// parameter mapping onto Model 4 and the integration scheme.
+#include "fitting/model5.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+#include "core/error.h"
+
+namespace dropfit::fitting {
+namespace {
+
+using Grid = Eigen::ArrayXXd;  // rows = cells along y, columns = cells along x
+
+void require(bool ok, const std::string& reason) {
+  if (!ok) throw Error("model5: " + reason);
+}
+
+bool finite_nonneg(double v) { return std::isfinite(v) && v >= 0.0; }
+bool finite_pos(double v) { return std::isfinite(v) && v > 0.0; }
+
+void validate(const MatParams& p, const Model5Geometry& g, const Impact& im) {
+  require(finite_pos(p.m1_kg), fmt::format("top layer mass m1_kg must be > 0 (got {})", p.m1_kg));
+  require(finite_pos(p.m2_kg), fmt::format("bottom layer mass m2_kg must be > 0 (got {})", p.m2_kg));
+  require(finite_nonneg(p.k1_n_m) && finite_nonneg(p.k2_n_m) && finite_nonneg(p.k3_n_m),
+          "stiffnesses k1..k3 must be finite and >= 0");
+  require(finite_nonneg(p.r1_n_s_m) && finite_nonneg(p.r2_n_s_m) && finite_nonneg(p.r3_n_s_m),
+          "dampings r1..r3 must be finite and >= 0");
+  require(finite_nonneg(p.k1_cubic_n_m3), "k1_cubic_n_m3 must be finite and >= 0");
+  require(std::isfinite(p.r1_unload_n_s_m), "r1_unload_n_s_m must be finite");
+  require(!(p.maxwell_k_n_m > 0.0), "the Maxwell arm (maxwell_k_n_m > 0) is not carried by Model 5");
+  require(finite_pos(im.mass_kg), "impactor mass must be > 0");
+  require(std::isfinite(im.velocity_m_s) && std::isfinite(im.gravity_m_s2), "impact velocity and gravity must be finite");
+  require(finite_pos(im.duration_s), "duration_s must be > 0");
+  require(finite_pos(im.output_dt_s) && im.output_dt_s <= im.duration_s,
+          "output_dt_s must be > 0 and no longer than duration_s");
+  require(finite_pos(g.mat_length_m) && finite_pos(g.mat_width_m), "mat length and width must be > 0");
+  require(g.nodes_x >= 1 && g.nodes_y >= 1, "nodes_x and nodes_y must be >= 1");
+  require(finite_pos(g.footprint_length_m) && finite_pos(g.footprint_width_m), "footprint sides must be > 0");
+  require(finite_nonneg(g.shear1_n_m) && finite_nonneg(g.shear2_n_m) && finite_nonneg(g.shear_damping1_n_s_m) &&
+              finite_nonneg(g.shear_damping2_n_s_m),
+          "shear rigidities and dampings must be finite and >= 0");
+  require(std::isfinite(g.impact_x_m) && std::isfinite(g.impact_y_m) && std::isfinite(g.tilt_x0_rad) &&
+              std::isfinite(g.tilt_y0_rad) && std::isfinite(g.tilt_rate_x0_rad_s) &&
+              std::isfinite(g.tilt_rate_y0_rad_s),
+          "impact point, tilts and tilt rates must be finite");
+  require(finite_nonneg(g.impactor_height_m) && std::isfinite(g.inertia_tilt_x_kg_m2) &&
+              std::isfinite(g.inertia_tilt_y_kg_m2),
+          "impactor height and moments of inertia must be finite (height >= 0)");
+  require(finite_pos(g.max_step_s), "max_step_s must be > 0");
+  require(g.stability_fraction > 0.0 && g.stability_fraction <= 1.0, "stability_fraction must be in (0, 1]");
+}
+
+// Length of the overlap of [a0, a1] and [b0, b1] (0 when disjoint), and its centre.
+double overlap(double a0, double a1, double b0, double b1, double* centre) {
+  const double lo = std::max(a0, b0), hi = std::min(a1, b1);
+  *centre = 0.5 * (lo + hi);
+  return std::max(0.0, hi - lo);
+}
+
+// Bilinear weights of position p among cell centres c0 + i * d, i = 0..n-1,
+// clamped to the outer centres: p lies between centres i0 and i0 + 1 with
+// weight (1 - f) and f.
+void bracket(double p, double c0, double d, int n, int* i0, double* f) {
+  if (n == 1) {
+    *i0 = 0;
+    *f = 0.0;
+    return;
+  }
+  const double s = std::clamp((p - c0) / d, 0.0, static_cast<double>(n - 1));
+  *i0 = std::min(static_cast<int>(std::floor(s)), n - 2);
+  *f = s - *i0;
+}
+
+// Shear forces of one layer on its nodes (added into F) for pair stiffness
+// and damping kx, cx (along x) and ky, cy (along y); frame links of twice
+// that at the edges when framed. Returns the frame's share (downwards
+// force on the frame, i.e. on the plate). Dx, Dy are scratch.
+double add_shear(const Grid& Z, const Grid& V, double kx, double cx, double ky, double cy, bool framed,
+                 Grid& F, Grid& Dx, Grid& Dy) {
+  const Eigen::Index ny = Z.rows(), nx = Z.cols();
+  if (nx > 1) {
+    Dx = kx * (Z.rightCols(nx - 1) - Z.leftCols(nx - 1)) + cx * (V.rightCols(nx - 1) - V.leftCols(nx - 1));
+    F.leftCols(nx - 1) += Dx;
+    F.rightCols(nx - 1) -= Dx;
+  }
+  if (ny > 1) {
+    Dy = ky * (Z.bottomRows(ny - 1) - Z.topRows(ny - 1)) + cy * (V.bottomRows(ny - 1) - V.topRows(ny - 1));
+    F.topRows(ny - 1) += Dy;
+    F.bottomRows(ny - 1) -= Dy;
+  }
+  if (!framed) return 0.0;
+  // Links of 2 k over half a cell to the frame at travel 0.
+  double to_frame = 0.0;
+  const double kxe = 2.0 * kx, cxe = 2.0 * cx, kye = 2.0 * ky, cye = 2.0 * cy;
+  for (Eigen::Index c : {Eigen::Index{0}, nx - 1}) {
+    for (Eigen::Index r = 0; r < ny; ++r) {
+      const double f = kxe * Z(r, c) + cxe * V(r, c);
+      F(r, c) -= f;
+      to_frame += f;
+    }
+  }
+  for (Eigen::Index r : {Eigen::Index{0}, ny - 1}) {
+    for (Eigen::Index c = 0; c < nx; ++c) {
+      const double f = kye * Z(r, c) + cye * V(r, c);
+      F(r, c) -= f;
+      to_frame += f;
+    }
+  }
+  return to_frame;
+}
+
+}  // namespace
+
+Model5Result simulate_model5_detailed(const MatParams& params, const Model5Geometry& geo, const Impact& impact) {
+  validate(params, geo, impact);
+
+  const int nx = geo.nodes_x, ny = geo.nodes_y;
+  const double n_cells = static_cast<double>(nx) * ny;
+  const double dx = geo.mat_length_m / nx, dy = geo.mat_width_m / ny;
+  const double x0 = -0.5 * geo.mat_length_m + 0.5 * dx;  // first cell centre
+  const double y0 = -0.5 * geo.mat_width_m + 0.5 * dy;
+  const bool framed = geo.edge == MatEdge::Framed;
+
+  Model5Result out;
+  out.node_x_m = Eigen::VectorXd::LinSpaced(nx, x0, x0 + (nx - 1) * dx);
+  out.node_y_m = Eigen::VectorXd::LinSpaced(ny, y0, y0 + (ny - 1) * dy);
+  if (nx == 1) out.node_x_m(0) = x0;
+  if (ny == 1) out.node_y_m(0) = y0;
+
+  // Contact weights (face area share) and lever arms (overlap centroid from
+  // the face centre) per cell.
+  const double fx0 = geo.impact_x_m - 0.5 * geo.footprint_length_m, fx1 = geo.impact_x_m + 0.5 * geo.footprint_length_m;
+  const double fy0 = geo.impact_y_m - 0.5 * geo.footprint_width_m, fy1 = geo.impact_y_m + 0.5 * geo.footprint_width_m;
+  const double face_area = geo.footprint_length_m * geo.footprint_width_m;
+  Grid W = Grid::Zero(ny, nx), Lx = Grid::Zero(ny, nx), Ly = Grid::Zero(ny, nx);
+  for (int ix = 0; ix < nx; ++ix) {
+    const double cx = out.node_x_m(ix);
+    double mx = 0.0;
+    const double ox = overlap(cx - 0.5 * dx, cx + 0.5 * dx, fx0, fx1, &mx);
+    for (int iy = 0; iy < ny; ++iy) {
+      const double cy = out.node_y_m(iy);
+      double my = 0.0;
+      const double oy = overlap(cy - 0.5 * dy, cy + 0.5 * dy, fy0, fy1, &my);
+      if (ox > 0.0 && oy > 0.0) {
+        W(iy, ix) = ox * oy / face_area;
+        Lx(iy, ix) = mx - geo.impact_x_m;
+        Ly(iy, ix) = my - geo.impact_y_m;
+      }
+    }
+  }
+  require(W.sum() > 1e-9, fmt::format("the impactor's face at ({}, {}) m misses the {} x {} m mat", geo.impact_x_m,
+                                      geo.impact_y_m, geo.mat_length_m, geo.mat_width_m));
+
+  // Per-node elements (see model5.h).
+  const Grid K1 = params.k1_n_m * W, R1 = params.r1_n_s_m * W, K1c = params.k1_cubic_n_m3 * W;
+  const Grid R1u = (params.r1_unload_n_s_m >= 0.0 ? params.r1_unload_n_s_m : params.r1_n_s_m) * W;
+  const double k2n = params.k2_n_m / n_cells, r2n = params.r2_n_s_m / n_cells;
+  const double k3n = params.k3_n_m / n_cells, r3n = params.r3_n_s_m / n_cells;
+  const double m1n = params.m1_kg / n_cells, m2n = params.m2_kg / n_cells;
+  const double kx1 = geo.shear1_n_m * dy / dx, cx1 = geo.shear_damping1_n_s_m * dy / dx;
+  const double ky1 = geo.shear1_n_m * dx / dy, cy1 = geo.shear_damping1_n_s_m * dx / dy;
+  const double kx2 = geo.shear2_n_m * dy / dx, cx2 = geo.shear_damping2_n_s_m * dy / dx;
+  const double ky2 = geo.shear2_n_m * dx / dy, cy2 = geo.shear_damping2_n_s_m * dx / dy;
+
+  // Impactor.
+  const double M = impact.mass_kg, g = impact.gravity_m_s2;
+  const double h2 = geo.impactor_height_m * geo.impactor_height_m;
+  const double I_tilt_x = geo.inertia_tilt_x_kg_m2 > 0.0
+                        ? geo.inertia_tilt_x_kg_m2
+                        : M * (geo.footprint_length_m * geo.footprint_length_m + h2) / 12.0;
+  const double I_tilt_y = geo.inertia_tilt_y_kg_m2 > 0.0
+                        ? geo.inertia_tilt_y_kg_m2
+                        : M * (geo.footprint_width_m * geo.footprint_width_m + h2) / 12.0;
+
+  // Step: Gershgorin bounds on M^-1 K and M^-1 C (contact closed), then the
+  // scheme's stability limit w^2 dt^2 + 4 gam dt = 4, halved.
+  auto links = [](int count_x, int count_y, double px, double py) { return count_x * px + count_y * py; };
+  double w2 = 0.0, gam = 0.0;
+  for (int ix = 0; ix < nx; ++ix) {
+    for (int iy = 0; iy < ny; ++iy) {
+      const int nbx = (ix > 0) + (ix < nx - 1), nby = (iy > 0) + (iy < ny - 1);  // neighbours
+      const int edx = framed ? (ix == 0) + (ix == nx - 1) : 0;                     // frame links
+      const int edy = framed ? (iy == 0) + (iy == ny - 1) : 0;
+      const double k1 = K1(iy, ix), r1 = std::max(R1(iy, ix), R1u(iy, ix));
+      // Row sums |diagonal| + |off-diagonal|: coupled links count twice, frame links once.
+      w2 = std::max(w2, (2.0 * (k1 + k2n + links(nbx, nby, kx1, ky1)) + links(edx, edy, 2 * kx1, 2 * ky1)) / m1n);
+      gam = std::max(gam, (2.0 * (r1 + r2n + links(nbx, nby, cx1, cy1)) + links(edx, edy, 2 * cx1, 2 * cy1)) / m1n);
+      w2 = std::max(w2, (2.0 * (k2n + links(nbx, nby, kx2, ky2)) + k3n + links(edx, edy, 2 * kx2, 2 * ky2)) / m2n);
+      gam = std::max(gam, (2.0 * (r2n + links(nbx, nby, cx2, cy2)) + r3n + links(edx, edy, 2 * cx2, 2 * cy2)) / m2n);
+    }
+  }
+  {
+    const double ksum = K1.sum(), rsum = std::max(R1.sum(), R1u.sum());
+    w2 = std::max(w2, 2.0 * ksum / M);
+    gam = std::max(gam, 2.0 * rsum / M);
+    const double krx = (K1 * Lx.square()).sum(), kry = (K1 * Ly.square()).sum();
+    const double rrx = (R1.max(R1u) * Lx.square()).sum(), rry = (R1.max(R1u) * Ly.square()).sum();
+    w2 = std::max({w2, 2.0 * krx / I_tilt_x, 2.0 * kry / I_tilt_y});
+    gam = std::max({gam, 2.0 * rrx / I_tilt_x, 2.0 * rry / I_tilt_y});
+  }
+  double dt_limit = geo.max_step_s;
+  if (w2 > 0.0 || gam > 0.0) {
+    const double dt_stable = w2 > 0.0 ? 2.0 * (-gam + std::sqrt(gam * gam + w2)) / w2 : 1.0 / gam;
+    dt_limit = std::min(dt_limit, geo.stability_fraction * dt_stable);
+  }
+  const double out_dt = impact.output_dt_s;
+  const long n_sub = std::max(1L, static_cast<long>(std::ceil(out_dt / dt_limit - 1e-9)));
+  const double dt = out_dt / static_cast<double>(n_sub);
+  const long n_out = static_cast<long>(std::floor(impact.duration_s / out_dt + 1e-9)) + 1;
+  require(n_out <= 10'000'000, "more than 1e7 output samples requested");
+  require(static_cast<double>(n_sub) * static_cast<double>(n_out) <= 2e8,
+          fmt::format("the stiffest element needs a step of {:.3g} s: too many steps; lower the shear rigidity "
+                      "or the shear damping",
+                      dt));
+  out.step_s = dt;
+
+  // Element 1's top, node by node, as Model 4's massless element 1: while the
+  // face presses (In) its compression is the penetration D; when its force
+  // would pull, the face leaves and the element relaxes on its own,
+  // k1 e + k1_cubic e^3 + r e' = 0 (r = r1_unload when on), until the face
+  // comes back down to it (D >= e).
+  const double r_ext = params.r1_unload_n_s_m >= 0.0 ? params.r1_unload_n_s_m : params.r1_n_s_m;
+  const double relax = r_ext > 0.0 ? std::exp(-dt * params.k1_n_m / r_ext) : 0.0;
+
+  // Surface probe under the face centre (bilinear among cell centres).
+  int px = 0, py = 0;
+  double fxw = 0.0, fyw = 0.0;
+  bracket(geo.impact_x_m, x0, dx, nx, &px, &fxw);
+  bracket(geo.impact_y_m, y0, dy, ny, &py, &fyw);
+  const int px1 = std::min(px + 1, nx - 1), py1 = std::min(py + 1, ny - 1);
+
+  // State.
+  Grid Z1 = Grid::Zero(ny, nx), V1 = Grid::Zero(ny, nx), Z2 = Grid::Zero(ny, nx), V2 = Grid::Zero(ny, nx);
+  double tx = geo.tilt_x0_rad, ty = geo.tilt_y0_rad;
+  double wx = geo.tilt_rate_x0_rad_s, wy = geo.tilt_rate_y0_rad_s;
+  // Lowest corner of the face's part over the mat touches the mat top at t = 0.
+  const double cx0 = std::max(fx0, -0.5 * geo.mat_length_m) - geo.impact_x_m;
+  const double cx1c = std::min(fx1, 0.5 * geo.mat_length_m) - geo.impact_x_m;
+  const double cy0 = std::max(fy0, -0.5 * geo.mat_width_m) - geo.impact_y_m;
+  const double cy1c = std::min(fy1, 0.5 * geo.mat_width_m) - geo.impact_y_m;
+  double zc = -std::max(tx * cx0, tx * cx1c) - std::max(ty * cy0, ty * cy1c);
+  double vc = impact.velocity_m_s;
+
+  // Scratch (no allocation inside the loop).
+  Grid D(ny, nx), Dd(ny, nx), Fr(ny, nx), Surf(ny, nx), Fc(ny, nx), F12(ny, nx), Fg(ny, nx), S1(ny, nx), S2(ny, nx);
+  Grid Dx1(ny, std::max(nx - 1, 1)), Dy1(std::max(ny - 1, 1), nx);
+  // Accelerations of the last evaluation and the velocity estimates at t_n.
+  Grid A1 = Grid::Zero(ny, nx), A2 = Grid::Zero(ny, nx), E1(ny, nx), E2(ny, nx);
+  double ac = 0.0, awx = 0.0, awy = 0.0;
+  // Element 1's compression (its top's travel below the top layer) and contact flags.
+  using Mask = Eigen::Array<bool, Eigen::Dynamic, Eigen::Dynamic>;
+  Grid Top = Grid::Zero(ny, nx);
+  const Mask Face = W > 0.0;
+  Mask In = Mask::Constant(ny, nx, false), Was(ny, nx);
+
+  Simulation& sim = out.sim;
+  for (Eigen::VectorXd* v : {&sim.t_s, &sim.grf_n, &sim.impactor_m, &sim.surface_m, &sim.layer1_m, &sim.layer2_m,
+                             &out.impactor_velocity_m_s, &out.tilt_x_rad, &out.tilt_y_rad, &out.mat_momentum_n_s})
+    v->resize(n_out);
+  out.surface_at_peak_m = Eigen::MatrixXd::Zero(ny, nx);
+  out.peak_grf_n = -std::numeric_limits<double>::infinity();
+  double face_dent_at_peak_m3 = 0.0;  // extra volume where the face presses below the top layer
+  auto probe = [&](const Grid& Z) {  // bilinear under the face centre
+    return (1.0 - fyw) * ((1.0 - fxw) * Z(py, px) + fxw * Z(py, px1)) +
+           fyw * ((1.0 - fxw) * Z(py1, px) + fxw * Z(py1, px1));
+  };
+
+  // Leapfrog (see model5.h): V*, vc, wx, wy hold velocities at t_{n-1/2}
+  // (at t_0 for n = 0); forces at t_n use E = V + dt/2 * A(t_{n-1}).
+  bool touched = false;
+  long step = 0;
+  for (long k = 0; k < n_out; ++k) {
+    for (long sub = 0; sub < n_sub; ++sub, ++step) {
+      const double half = step == 0 ? 0.0 : 0.5 * dt;
+      E1 = V1 + half * A1;
+      E2 = V2 + half * A2;
+      const double ec = vc + half * ac, ewx = wx + half * awx, ewy = wy + half * awy;
+
+      // Forces from the state at t_n = step * dt. Contact: the face reaches
+      // the element's top and the element pushes (never pulls).
+      D = (zc + tx * Lx + ty * Ly) - Z1;
+      Dd = (ec + ewx * Lx + ewy * Ly) - E1;
+      Fr = K1 * D + K1c * D.cube() + (Dd < 0.0).select(R1u, R1) * Dd;
+      Was = In;
+      In = (In || (Face && D >= Top)) && Fr >= 0.0;
+      Fc = In.select(Fr, 0.0);
+      F12 = k2n * (Z1 - Z2) + r2n * (E1 - E2);
+      Fg = k3n * Z2 + r3n * E2;
+      S1.setZero();
+      S2.setZero();
+      const double frame1 = add_shear(Z1, E1, kx1, cx1, ky1, cy1, framed, S1, Dx1, Dy1);
+      const double frame2 = add_shear(Z2, E2, kx2, cx2, ky2, cy2, framed, S2, Dx1, Dy1);
+      const double f_contact = Fc.sum();
+      const double torque_x = -(Fc * Lx).sum();  // acts on tilt_x
+      const double torque_y = -(Fc * Ly).sum();
+
+      if (sub == 0) {  // record the sample at t = k * out_dt
+        const double grf = Fg.sum() + frame1 + frame2;
+        sim.t_s(k) = static_cast<double>(k) * out_dt;
+        sim.grf_n(k) = grf;
+        sim.impactor_m(k) = zc;
+        const double layer1 = probe(Z1);
+        // The element's top under the centre: the face while it presses there.
+        Surf = In.select(D, Top);
+        sim.surface_m(k) = layer1 + probe(Surf);
+        sim.layer1_m(k) = layer1;
+        sim.layer2_m(k) = probe(Z2);
+        out.impactor_velocity_m_s(k) = ec;
+        out.tilt_x_rad(k) = tx;
+        out.tilt_y_rad(k) = ty;
+        out.mat_momentum_n_s(k) = m1n * E1.sum() + m2n * E2.sum();
+        if (grf > out.peak_grf_n) {
+          out.peak_grf_n = grf;
+          out.peak_time_s = sim.t_s(k);
+          out.surface_at_peak_m = Z1.matrix();
+          face_dent_at_peak_m3 = (W * Surf.max(0.0)).sum() * face_area;
+        }
+        if (k == n_out - 1) break;  // last sample recorded; no step beyond the duration
+      }
+      if (f_contact > 0.0) {
+        touched = true;
+      } else if (touched && !std::isfinite(sim.separation_s)) {
+        sim.separation_s = static_cast<double>(step) * dt;
+      }
+
+      // Element tops at t_{n+1}: where the face presses (or has just left:
+      // the face and the relaxing top move alike at the instant of leaving,
+      // so D is the top to second order) start from D, then relax over the
+      // step: e <- e exp(-dt (k1 + k1_cubic e^2) / r).
+      Top = (In || Was).select(D.max(0.0), Top);
+      if (r_ext > 0.0 && params.k1_cubic_n_m3 > 0.0) {
+        Top *= (-(dt / r_ext) * (params.k1_n_m + params.k1_cubic_n_m3 * Top.square())).exp();
+      } else {
+        Top *= relax;
+      }
+
+      // New accelerations; kick (half a kick on the first step), then drift.
+      A1 = (Fc - F12 + S1) / m1n;
+      A2 = (F12 - Fg + S2) / m2n;
+      ac = g - f_contact / M;
+      awx = torque_x / I_tilt_x;
+      awy = torque_y / I_tilt_y;
+      const double kick = step == 0 ? 0.5 * dt : dt;
+      V1 += kick * A1;
+      V2 += kick * A2;
+      vc += kick * ac;
+      wx += kick * awx;
+      wy += kick * awy;
+      Z1 += dt * V1;
+      Z2 += dt * V2;
+      zc += dt * vc;
+      tx += dt * wx;
+      ty += dt * wy;
+    }
+  }
+  out.steps = step;
+  // Visible dent at peak: the top layer's travel, plus where the face presses
+  // deeper than the layer (element 1 compressed), the face's travel there.
+  out.layer_volume_at_peak_m3 = out.surface_at_peak_m.sum() * dx * dy;
+  out.deformed_volume_at_peak_m3 = out.layer_volume_at_peak_m3 + face_dent_at_peak_m3;
+  {
+    const double s = probe(out.surface_at_peak_m.array());
+    out.layer_dent_area_at_peak_m2 = s > 0.0 ? out.layer_volume_at_peak_m3 / s : 0.0;
+  }
+  return out;
+}
+
+Simulation simulate_model5(const MatParams& params, const Model5Geometry& geometry, const Impact& impact) {
+  return simulate_model5_detailed(params, geometry, impact).sim;
+}
+
+}  // namespace dropfit::fitting

@@ -1,0 +1,270 @@
+// Model 5 (fitting/model5.h): the geometric, area-elastic mat. Each test
+// builds its own truth: Model 4 (which Model 5 must become when the mat moves
+// as a whole), Newton's second law for the whole system (impulse balance),
+// symmetry (no tilt), and the time step (convergence).
+#include "fitting/model5.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "core/error.h"
+#include "fitting/models.h"
+
+namespace dropfit::fitting {
+namespace {
+
+// The paper's Table 2 Model 5 parameters (k1 70880, k2 787200, k3 617120,
+// r1 260, r2 280, r3 850; m1 2.44 kg, m2 3.66 kg) and its trial 3 impact.
+MatParams table2() { return paper_table2(ModelKind::Model5); }
+
+Impact trial3() {
+  Impact im;
+  im.mass_kg = 24.0;
+  im.velocity_m_s = 5.25;
+  im.duration_s = 0.3;
+  im.output_dt_s = 1e-3;
+  return im;
+}
+
+double max_abs_diff(const Eigen::VectorXd& a, const Eigen::VectorXd& b) { return (a - b).cwiseAbs().maxCoeff(); }
+
+// Trapezoid rule over uniformly spaced samples.
+double integral(const Eigen::VectorXd& y, double h) {
+  return h * (y.sum() - 0.5 * (y(0) + y(y.size() - 1)));
+}
+
+// Index of the cell centre nearest to v.
+Eigen::Index nearest(const Eigen::VectorXd& centres, double v) {
+  Eigen::Index i = 0;
+  (centres.array() - v).abs().minCoeff(&i);
+  return i;
+}
+
+TEST(Model5, OneCellPerLayerIsModel4) {
+  // With one cell per layer every element's share is the whole element:
+  // Model 4 exactly, whatever the shear.
+  Model5Geometry geo;
+  geo.nodes_x = 1;
+  geo.nodes_y = 1;
+  const Simulation m4 = simulate(ModelKind::Model4, table2(), trial3());
+  const Simulation m5 = simulate_model5(table2(), geo, trial3());
+  const double peak = m4.grf_n.maxCoeff();
+  ASSERT_GT(peak, 1000.0);
+  ASSERT_EQ(m5.grf_n.size(), m4.grf_n.size());
+  EXPECT_LT(max_abs_diff(m5.grf_n, m4.grf_n), 0.001 * peak);       // 0.1 % of peak (1 % required)
+  EXPECT_LT(max_abs_diff(m5.impactor_m, m4.impactor_m), 2e-4);     // 0.2 mm
+  EXPECT_LT(max_abs_diff(m5.surface_m, m4.surface_m), 2e-4);
+  EXPECT_LT(max_abs_diff(m5.layer1_m, m4.layer1_m), 2e-4);
+  EXPECT_NEAR(m5.separation_s, m4.separation_s, 2e-4);
+}
+
+TEST(Model5, FaceCoveringTheMatIsModel4) {
+  // A face as large as the mat presses every cell alike: no neighbour
+  // differs, so shear does nothing and the grid moves as Model 4's masses.
+  Model5Geometry geo;  // 9 x 6 cells, shear on
+  geo.footprint_length_m = geo.mat_length_m;
+  geo.footprint_width_m = geo.mat_width_m;
+  const Simulation m4 = simulate(ModelKind::Model4, table2(), trial3());
+  const Model5Result m5 = simulate_model5_detailed(table2(), geo, trial3());
+  const double peak = m4.grf_n.maxCoeff();
+  EXPECT_LT(max_abs_diff(m5.sim.grf_n, m4.grf_n), 0.001 * peak);
+  EXPECT_LT(max_abs_diff(m5.sim.surface_m, m4.surface_m), 2e-4);
+  // Uniform: the field at peak is flat to rounding.
+  const Eigen::MatrixXd& f = m5.surface_at_peak_m;
+  EXPECT_LT(f.maxCoeff() - f.minCoeff(), 1e-12);
+}
+
+TEST(Model5, StiffShearApproachesModel4) {
+  // The real 0.25 m face: as the layers' shear rigidity grows they move as
+  // flat plates and Model 4 returns; the error shrinks with stiffness.
+  const Simulation m4 = simulate(ModelKind::Model4, table2(), trial3());
+  const double peak = m4.grf_n.maxCoeff();
+  double previous = std::numeric_limits<double>::infinity();
+  for (double shear : {1e4, 1e5, 1e6, 1e7}) {
+    Model5Geometry geo;
+    geo.shear1_n_m = geo.shear2_n_m = shear;
+    const Simulation m5 = simulate_model5(table2(), geo, trial3());
+    const double err = max_abs_diff(m5.grf_n, m4.grf_n) / peak;
+    EXPECT_LT(err, previous) << "shear " << shear;
+    previous = err;
+  }
+  EXPECT_LT(previous, 0.01);  // within 1 % of peak at S = 1e7 N/m
+}
+
+// Newton for the whole system, downward positive, GRF zeroed at rest (the
+// mat's weight is what the zeroing removed): over [0, T]
+//   integral(GRF) = M (v0 - v(T)) + M g T - p_mat(T),
+// i.e. the plate's impulse is the impactor's momentum change plus gravity's
+// impulse on it, less what the mat still carries. A raw plate would add the
+// mat's weight times T on both sides.
+void expect_impulse_balance(const Model5Geometry& geo) {
+  Impact im = trial3();
+  im.output_dt_s = 5e-5;  // fine samples: the trapezoid's own error stays far below 1e-3
+  const Model5Result r = simulate_model5_detailed(table2(), geo, im);
+  const Eigen::Index last = r.sim.t_s.size() - 1;
+  const double T = r.sim.t_s(last);
+  const double plate = integral(r.sim.grf_n, im.output_dt_s);
+  const double newton = im.mass_kg * (im.velocity_m_s - r.impactor_velocity_m_s(last)) +
+                        im.mass_kg * im.gravity_m_s2 * T - r.mat_momentum_n_s(last);
+  ASSERT_GT(plate, 100.0);
+  EXPECT_NEAR(plate, newton, 1e-3 * plate);  // 0.1 % (1 % required)
+  // The impactor has left and the mat has nearly settled by 0.3 s: the plate
+  // has returned the impactor's momentum plus the rebound.
+  EXPECT_TRUE(std::isfinite(r.sim.separation_s));
+  EXPECT_LT(std::abs(r.mat_momentum_n_s(last)), 1e-2 * plate);
+}
+
+TEST(Model5, ImpulseBalancesMomentumCentred) { expect_impulse_balance(Model5Geometry{}); }
+
+TEST(Model5, ImpulseBalancesMomentumFramedOffCentreTilted) {
+  // Every path at once: frame reactions, off-centre contact, tilt.
+  Model5Geometry geo;
+  geo.edge = MatEdge::Framed;
+  geo.impact_x_m = 0.17;
+  geo.impact_y_m = -0.08;
+  geo.tilt_x0_rad = 0.03;
+  geo.tilt_rate_y0_rad_s = -0.5;
+  expect_impulse_balance(geo);
+}
+
+TEST(Model5, CentredImpactDoesNotTilt) {
+  for (MatEdge edge : {MatEdge::Free, MatEdge::Framed}) {
+    Model5Geometry geo;
+    geo.edge = edge;
+    const Model5Result r = simulate_model5_detailed(table2(), geo, trial3());
+    EXPECT_LT(r.tilt_x_rad.cwiseAbs().maxCoeff(), 1e-9);
+    EXPECT_LT(r.tilt_y_rad.cwiseAbs().maxCoeff(), 1e-9);
+  }
+}
+
+// Off-centre towards +x and +y (face at (0.20, 0.10) m on the 0.90 x 0.60 m
+// mat). With free edges the cells between the face and the near edges have
+// fewer neighbours beyond them to share the load through shear, so the near
+// side is softer and sinks further: the face tilts with its +x, +y sides
+// down (tilt > 0). Held by the frame, the near edges are the stiff side: the
+// far side sinks, tilt < 0. Without shear every column stands alone and the
+// face's contact is symmetric about its centre: no tilt at all.
+TEST(Model5, OffCentreImpactTiltsTowardsTheSofterSide) {
+  Model5Geometry geo;
+  geo.impact_x_m = 0.20;
+  geo.impact_y_m = 0.10;
+  auto peak_tilt = [&](const Model5Result& r, const Eigen::VectorXd& tilt) {
+    Eigen::Index i = 0;
+    r.sim.grf_n.maxCoeff(&i);
+    return tilt(i);
+  };
+
+  geo.edge = MatEdge::Free;
+  const Model5Result free_edges = simulate_model5_detailed(table2(), geo, trial3());
+  EXPECT_GT(peak_tilt(free_edges, free_edges.tilt_x_rad), 1e-4);
+  EXPECT_GT(peak_tilt(free_edges, free_edges.tilt_y_rad), 1e-4);
+
+  geo.edge = MatEdge::Framed;
+  const Model5Result framed = simulate_model5_detailed(table2(), geo, trial3());
+  EXPECT_LT(peak_tilt(framed, framed.tilt_x_rad), -1e-4);
+  EXPECT_LT(peak_tilt(framed, framed.tilt_y_rad), -1e-4);
+
+  geo.edge = MatEdge::Free;
+  geo.shear1_n_m = geo.shear2_n_m = 0.0;
+  geo.shear_damping1_n_s_m = geo.shear_damping2_n_s_m = 0.0;
+  const Model5Result no_shear = simulate_model5_detailed(table2(), geo, trial3());
+  EXPECT_LT(no_shear.tilt_x_rad.cwiseAbs().maxCoeff(), 1e-9);
+  EXPECT_LT(no_shear.tilt_y_rad.cwiseAbs().maxCoeff(), 1e-9);
+}
+
+TEST(Model5, InitialTiltLevelsOut) {
+  // A face landing tilted (+x side low) touches first with that side, which
+  // the mat pushes up: the tilt must fall during contact.
+  Model5Geometry geo;
+  geo.tilt_x0_rad = 0.05;
+  const Model5Result r = simulate_model5_detailed(table2(), geo, trial3());
+  Eigen::Index i = 0;
+  r.sim.grf_n.maxCoeff(&i);
+  EXPECT_NEAR(r.tilt_x_rad(0), 0.05, 1e-12);
+  EXPECT_LT(r.tilt_x_rad(i), 0.05);
+  // At t = 0 the low corner is at the mat top: the centre is above it.
+  EXPECT_NEAR(r.sim.impactor_m(0), -0.05 * 0.125, 1e-12);
+}
+
+TEST(Model5, EachTiltHasItsOwnInertia) {
+  // Landing tilted about both axes, with a huge moment of inertia against
+  // tilt_x only: tilt_x must keep its initial value while tilt_y levels out.
+  Model5Geometry geo;
+  geo.tilt_x0_rad = 0.02;
+  geo.tilt_y0_rad = 0.02;
+  geo.inertia_tilt_x_kg_m2 = 1e6;
+  const Model5Result r = simulate_model5_detailed(table2(), geo, trial3());
+  Eigen::Index i = 0;
+  r.sim.grf_n.maxCoeff(&i);
+  EXPECT_NEAR(r.tilt_x_rad(i), 0.02, 1e-5);
+  EXPECT_LT(r.tilt_y_rad(i), 0.01);
+}
+
+TEST(Model5, HalvingTheStepChangesPeakByLessThanHalfAPercent) {
+  Model5Geometry geo;
+  const Model5Result base = simulate_model5_detailed(table2(), geo, trial3());
+  geo.max_step_s = 0.5 * base.step_s;
+  const Model5Result half = simulate_model5_detailed(table2(), geo, trial3());
+  geo.max_step_s = 0.1 * base.step_s;
+  const Model5Result tenth = simulate_model5_detailed(table2(), geo, trial3());
+  ASSERT_NEAR(half.step_s, 0.5 * base.step_s, 1e-12);
+  EXPECT_LT(std::abs(half.peak_grf_n / base.peak_grf_n - 1.0), 0.005);
+  EXPECT_LT(std::abs(tenth.peak_grf_n / base.peak_grf_n - 1.0), 0.005);
+  const double peak = tenth.peak_grf_n;
+  EXPECT_LT(max_abs_diff(base.sim.grf_n, tenth.sim.grf_n), 0.005 * peak);
+}
+
+TEST(Model5, ShearSpreadsTheDentBeyondTheFace) {
+  // At peak force, the top layer under a cell outside the 0.25 m face (centre
+  // (0.30, 0.05) m: the face ends at x = 0.125 m) moves only through shear.
+  Model5Geometry geo;
+  const Model5Result with_shear = simulate_model5_detailed(table2(), geo, trial3());
+  const Eigen::Index ix = nearest(with_shear.node_x_m, 0.30), iy = nearest(with_shear.node_y_m, 0.05);
+  ASSERT_NEAR(with_shear.node_x_m(ix), 0.30, 1e-12);
+  const double centre = with_shear.sim.layer1_m.maxCoeff();
+  EXPECT_GT(with_shear.surface_at_peak_m(iy, ix), 0.1 * centre);
+  EXPECT_GT(with_shear.layer_dent_area_at_peak_m2, 3.0 * 0.25 * 0.25);
+
+  geo.shear1_n_m = geo.shear2_n_m = 0.0;
+  geo.shear_damping1_n_s_m = geo.shear_damping2_n_s_m = 0.0;
+  const Model5Result point_elastic = simulate_model5_detailed(table2(), geo, trial3());
+  EXPECT_EQ(point_elastic.surface_at_peak_m(iy, ix), 0.0);
+  EXPECT_EQ(point_elastic.surface_at_peak_m.row(0).cwiseAbs().maxCoeff(), 0.0);  // y = -0.25 m row
+}
+
+TEST(Model5, ShearRigidityMeansTheSameOnAFinerGrid) {
+  // S is a continuum parameter (pair stiffness S dy/dx): doubling the grid
+  // must change the answer only by discretisation, not by a factor.
+  Model5Geometry coarse;
+  Model5Geometry fine = coarse;
+  fine.nodes_x = 18;
+  fine.nodes_y = 12;
+  const Model5Result a = simulate_model5_detailed(table2(), coarse, trial3());
+  const Model5Result b = simulate_model5_detailed(table2(), fine, trial3());
+  EXPECT_NEAR(b.peak_grf_n, a.peak_grf_n, 0.03 * a.peak_grf_n);
+  EXPECT_NEAR(b.layer_dent_area_at_peak_m2, a.layer_dent_area_at_peak_m2, 0.15 * a.layer_dent_area_at_peak_m2);
+}
+
+TEST(Model5, RejectsImpossibleInput) {
+  const Model5Geometry geo;
+  MatParams p = table2();
+  p.m1_kg = 0.0;
+  EXPECT_THROW(simulate_model5(p, geo, trial3()), Error);
+  p = table2();
+  p.k2_n_m = -1.0;
+  EXPECT_THROW(simulate_model5(p, geo, trial3()), Error);
+  p = table2();
+  p.maxwell_k_n_m = 1000.0;
+  p.maxwell_tau_s = 0.01;
+  EXPECT_THROW(simulate_model5(p, geo, trial3()), Error);
+  Model5Geometry off = geo;
+  off.impact_x_m = 1.0;  // face [0.875, 1.125] m, mat ends at 0.45 m
+  EXPECT_THROW(simulate_model5(table2(), off, trial3()), Error);
+  Model5Geometry no_cells = geo;
+  no_cells.nodes_y = 0;
+  EXPECT_THROW(simulate_model5(table2(), no_cells, trial3()), Error);
+}
+
+}  // namespace
+}  // namespace dropfit::fitting
