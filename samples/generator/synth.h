@@ -1,0 +1,287 @@
+#pragma once
+// Synthetic drop-test sessions with known truth (issues 2-5, "samples/").
+//
+// make_session() builds, in memory, exactly the capture::Session that
+// capture::read_session would return for a lab's session folder, together
+// with the truth it was made from, so that every stage can be tested against
+// values it did not compute. The world it simulates:
+//
+// * Lab frame as in shared/spec/session-format.md: origin at the centre of
+//   the force-plate top, Z up, X along the mat's long side. The mat lies on
+//   the plate, centred, its undeformed top at the sum of the layer
+//   thicknesses (0.205 m by default).
+// * Impactor: falls freely under gravity (held at rest before its release,
+//   v^2 / 2g above the mat) until its face centre reaches the mat top; from
+//   then on its face follows fitting::simulate's impactor travel for the
+//   chosen mat model (Mills, Pain & Yeadon 2006, Figure 2), sampled at
+//   10 us and linearly interpolated. The physics is one-dimensional: the
+//   impactor keeps a constant tilt about the lab Y axis (per trial, drawn
+//   from the paper's 2.6 +- 0.87 deg) and a constant horizontal impact point
+//   a few millimetres off the plate centre, but contact starts when the face
+//   centre reaches the mat top.
+// * Markers: two on the impactor base, +-base_marker_spacing_m along the
+//   impactor's own X axis from the face centre and base_marker_height_m
+//   above the face, rotated with the tilt (so the line between them shows
+//   the whole tilt); four on the mat top just outside the footprint edges
+//   (north/south along +-Y, east/west along +-X of the mat centre). The
+//   ASSUMPTION for the mat markers: they move vertically with the top layer
+//   under the impactor (fitting::Simulation::surface_m), i.e. the mat surface
+//   next to the footprint is taken to travel with it; real area-elastic mats
+//   dip less away from the footprint.
+// * Cameras: two pinhole cameras K [R | t] with square pixels, optical axes
+//   camera_angle_deg apart, camera_distance_m from the centre of the
+//   calibrated volume, seen from the mat's -Y side and slightly from above,
+//   with a small roll each; the focal length makes the calibrated volume
+//   fill `image_fill` of the image. The truth holds each camera's exact
+//   11-parameter DLT (P normalised by P(3,4)), and, when lens distortion is
+//   injected, Bouguet's k1 k2 p1 p2 k3 applied to the pinhole pixel about the
+//   principal point with the radius normalised by the focal length (the
+//   convention of calibration/calibration.h, so a dlt16 fit can represent
+//   it exactly).
+// * Calibration structure: 20 non-coplanar markers spanning the mat volume
+//   and the impactor's last ~0.5 m of fall; ids c01..c20, odd ones `fit`,
+//   even ones `check`.
+// * Force plate: Kistler eight-channel record (spec formulas). Fz is the
+//   model's ground reaction force times the plate gain, plus drift, channel
+//   noise and per-channel zero offsets; Fx and Fy are small fixed fractions
+//   of Fz; the centre of pressure is the impact point. The four vertical
+//   sensor loads are solved from Fz, Mx, My and a zero-twist condition
+//   (Fz1 - Fz2 + Fz3 - Fz4 = 0), the shear pairs split equally (Mz = 0).
+//   The trigger sample (first zeroed Fz >= trigger threshold) is t = 0 and
+//   sits at index `pretrigger samples`; first contact falls at a random
+//   sub-sample phase before it.
+// * Clocks: video frame i is at video time (i - trigger_frame) / frame rate;
+//   its force-clock time is that minus the true video offset (zero unless
+//   time_offset is injected; results-format.md's video_offset_s).
+//
+// Injected effects (Effects below) are not declared anywhere in the session
+// folder; only the truth names them, with their magnitudes.
+#include <Eigen/Core>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "calibration/calibration.h"
+#include "capture/session.h"
+#include "fitting/models.h"
+
+namespace dropfit::synth {
+
+// Effects to inject; every default is "off". Names and stages follow
+// shared/spec/results-format.md's effect table.
+struct Effects {
+  // calibration / lens_distortion: Bouguet k1 on both cameras (k2 p1 p2 k3 from
+  // SynthOptions::extra_distortion).
+  double lens_distortion_k1 = 0.0;
+  // calibration / outlier_marker: one fit marker misplaced in the last camera
+  // by exactly this many pixels, towards the marker whose image distance is
+  // closest to it (so a magnitude equal to that distance is a mislabel: the
+  // row holds the other marker's pixel). 0 = off.
+  double outlier_marker_px = 0.0;
+  // sync / time_offset: true video offset (video clock minus force clock) in ms.
+  double time_offset_ms = 0.0;
+  // forceplate / baseline_drift: Fz offset ramp in N/s, from the trigger
+  // sample on (or from the first sample when baseline_drift_whole_record).
+  double baseline_drift_n_s = 0.0;
+  bool baseline_drift_whole_record = false;
+  // forceplate / force_scale: plate gain error (1 = off), applied to all channels.
+  double force_scale = 1.0;
+  // mat / stiffness_nonlinearity: MatParams::k1_cubic_n_m3.
+  double k1_cubic_n_m3 = 0.0;
+  // mat / hysteresis: MatParams::r1_unload_n_s_m (negative = off).
+  double r1_unload_n_s_m = -1.0;
+  // mat / rate_dependence: Maxwell arm stiffness (0 = off) and time constant.
+  double maxwell_k_n_m = 0.0;
+  double maxwell_tau_s = 0.01;
+  // mat / layer_mass: mass moved from the bottom layer to the top one (kg;
+  // negative moves it down); the declared layers and the total stay.
+  double layer_mass_shift_kg = 0.0;
+};
+
+// Sets one effect by its results-format name: lens_distortion (k1),
+// outlier_marker (px), time_offset (ms), baseline_drift (N/s), force_scale
+// (gain), stiffness_nonlinearity (k1_cubic, N/m^3), hysteresis (r1_unload,
+// N s/m), rate_dependence (Maxwell k, N/m), layer_mass (kg moved to the top
+// layer). Throws dropfit::Error on an unknown name.
+void set_effect(Effects& effects, const std::string& name, double magnitude);
+std::vector<std::string> effect_names();
+
+// A marker hidden from one camera (or all, camera = -1) for some frames.
+struct Gap {
+  int trial = 0;           // 0-based
+  std::string point;       // a name from the session's [video].points
+  int camera = -1;         // 0-based; -1 = every camera
+  int first_frame = 0;
+  int n_frames = 0;
+};
+
+struct SynthOptions {
+  std::uint64_t seed = 1;
+  // One trial per velocity (downward speed at first contact), the paper's Table 1.
+  std::vector<double> impact_velocities_m_s{4.30, 4.80, 5.25, 5.75, 6.50};
+  double gravity_m_s2 = 9.81;
+
+  // Impactor.
+  double impactor_mass_kg = 24.0;
+  Eigen::Vector2d footprint_m{0.25, 0.25};
+  double base_marker_height_m = 0.03;   // above the contact face
+  double base_marker_spacing_m = 0.10;  // front/back of the face centre
+  double tilt_mean_deg = 2.6;           // per-trial tilt ~ N(mean, sd), about lab Y, random sign
+  double tilt_sd_deg = 0.87;
+  double impact_point_sd_m = 0.01;      // impact point's offset from the plate centre, per axis
+
+  // Mat (declared in the manifest; the true masses are in `params`).
+  double mat_length_m = 0.90;
+  double mat_width_m = 0.60;
+  std::vector<LayerSpec> layers{{"carpet", 0.005, 0.0}, {"stiff", 0.05, 2.44}, {"soft", 0.15, 3.66}};
+  double surface_marker_clearance_m = 0.03;  // outside the footprint edge
+
+  // Mat physics. use_default_params: default_mat_params(model, layers).
+  fitting::ModelKind model = fitting::ModelKind::Model4;
+  bool use_default_params = true;
+  fitting::MatParams params;
+
+  // Cameras.
+  int image_width_px = 1024;
+  int image_height_px = 1024;
+  double camera_angle_deg = 86.0;     // between the optical axes
+  double camera_distance_m = 3.0;     // from the centre of the calibrated volume
+  double camera_elevation_deg = 12.0; // optical axes look down by this much
+  double image_fill = 0.85;           // calibrated volume's half-extent / half-image
+  double pixel_noise_px = 0.25;       // Gaussian SD per coordinate (calibration and tracks)
+  std::vector<double> extra_distortion{0.0, 0.0, 0.0, 0.0};  // k2 p1 p2 k3, used with lens_distortion
+
+  // Video.
+  double frame_rate_hz = 1000.0;
+  int n_frames = 600;
+  int trigger_frame = 200;
+
+  // Force plate.
+  double force_rate_hz = 1000.0;
+  int n_samples = 1000;
+  double pretrigger_fraction = 0.10;
+  double trigger_threshold_n = 25.0;
+  double plate_a_m = 0.120;
+  double plate_b_m = 0.200;
+  double plate_az0_m = -0.040;
+  double channel_noise_n = 1.0;       // Gaussian SD per channel
+  double channel_offset_sd_n = 2.0;   // per-channel zero offsets ~ N(0, sd)
+  double shear_fraction_max = 0.02;   // |Fx| / Fz and |Fy| / Fz drawn uniformly below this
+
+  std::vector<Gap> gaps;
+  Effects effects;
+};
+
+// The paper-like default parameters of each model (see synth.cpp for how the
+// Model 4 set was chosen); masses from the declared layers (m1 = all layers
+// but the last, m2 = the last).
+fitting::MatParams default_mat_params(fitting::ModelKind model, const std::vector<LayerSpec>& layers);
+
+struct TrueCamera {
+  calibration::Camera camera;          // dlt, and distortion with principal point and focal when injected
+  Eigen::Matrix3d k = Eigen::Matrix3d::Identity();  // intrinsics (square pixels, no skew)
+  Eigen::Matrix3d cam_from_lab_r = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d cam_from_lab_t = Eigen::Vector3d::Zero();
+  Eigen::Vector3d centre_lab_m = Eigen::Vector3d::Zero();
+  int width_px = 0;
+  int height_px = 0;
+};
+
+struct TrueCalibrationMarker {
+  std::string id;
+  Eigen::Vector3d lab_m;
+  MarkerRole role = MarkerRole::Fit;
+  std::vector<Eigen::Vector2d> image_px;  // noise-free (distorted when injected), per camera
+};
+
+struct InjectedEffect {
+  std::string stage;   // calibration, sync, forceplate, mat
+  std::string name;    // results-format effect name
+  double magnitude = 0.0;
+  std::string unit;
+  std::string detail;  // what exactly was done
+};
+
+struct TrialTruth {
+  std::string id;
+  double impact_velocity_m_s = 0.0;
+  double max_deformation_m = 0.0;   // largest impactor-face travel below the mat top
+  double max_surface_travel_m = 0.0;
+  double peak_force_n = 0.0;        // true GRF peak (before the plate's gain)
+  double time_to_peak_s = 0.0;      // from first contact
+  double tilt_deg = 0.0;            // largest deviation from vertical during contact (>= 0)
+  double tilt_about_y_deg = 0.0;    // signed rotation about lab +Y at first contact (+: +X side lower)
+  double contact_time_s = 0.0;      // first contact on the force clock (trigger = 0)
+  double separation_time_s = 0.0;   // impactor leaves the mat, force clock (NaN if not)
+  double video_offset_s = 0.0;      // video clock minus force clock
+  double drop_height_m = 0.0;       // v^2 / 2g
+  int trigger_index = 0;            // always the pretrigger sample count
+  Eigen::Vector2d cop_m = Eigen::Vector2d::Zero();           // plate frame = lab x, y
+  Eigen::Vector2d impact_point_m = Eigen::Vector2d::Zero();  // face centre's x, y
+  Eigen::Vector2d shear_fraction = Eigen::Vector2d::Zero();  // Fx / Fz, Fy / Fz
+  Eigen::Matrix<double, 8, 1> channel_offsets_n = Eigen::Matrix<double, 8, 1>::Zero();
+  fitting::ModelKind model = fitting::ModelKind::Model4;
+  fitting::MatParams params;        // true, effects included
+  // On the force clock, one per force sample: the true (unscaled, noise-free)
+  // GRF and the impactor-face and mat-surface travel below the mat top.
+  Eigen::VectorXd t_s, grf_n, impactor_travel_m, surface_travel_m;
+  // Per video frame: its force-clock time and the true 3-D marker positions
+  // (n_frames x 3 n_points, point p in columns 3p..3p+2, [video].points order).
+  Eigen::VectorXd frame_force_time_s;
+  Eigen::MatrixXd markers_lab_m;
+  std::vector<Gap> gaps;
+};
+
+struct SynthTruth {
+  std::uint64_t seed = 0;
+  fitting::ModelKind model = fitting::ModelKind::Model4;
+  fitting::MatParams params;  // true, effects included (the same in every trial)
+  std::vector<TrueCamera> cameras;
+  std::vector<TrueCalibrationMarker> calibration_markers;
+  std::vector<std::string> points;  // [video].points
+  // Marker layout: base markers in the impactor's frame (origin at the face
+  // centre, X front, Z up; rotated by the tilt), mat markers' lab x, y.
+  std::vector<Eigen::Vector3d> base_markers_impactor_m;
+  std::vector<Eigen::Vector2d> mat_markers_xy_m;
+  double mat_top_z_m = 0.0;
+  double pixel_noise_px = 0.0;
+  double channel_noise_n = 0.0;
+  std::vector<InjectedEffect> effects;
+  std::vector<TrialTruth> trials;
+};
+
+struct SyntheticSession {
+  Session session;  // root is empty: set by whoever writes it
+  SynthTruth truth;
+};
+
+// Throws dropfit::Error on impossible options (no trials, a record too short
+// to hold the trigger, a trial that never reaches the trigger threshold, ...).
+SyntheticSession make_session(const SynthOptions& options);
+
+// ---- Pieces, public for the tests -------------------------------------------
+
+// The eight Kistler channels (Fx12 Fx34 Fy14 Fy23 Fz1 Fz2 Fz3 Fz4) whose spec
+// formulas give back force f_n (Fx Fy Fz) with centre of pressure cop_m
+// (ax, ay), Mz = 0 and zero twist of the vertical sensors.
+Eigen::Matrix<double, 8, 1> kistler_channels(const Eigen::Vector3d& f_n, const Eigen::Vector2d& cop_m, double a_m,
+                                             double b_m, double az0_m);
+
+// The 11 DLT coefficients of a 3 x 4 projection matrix (divided by P(3,4)).
+// Throws dropfit::Error when P(3,4) is (nearly) zero.
+calibration::Dlt11 dlt_from_projection(const Eigen::Matrix<double, 3, 4>& image_from_lab);
+
+// Bouguet distortion (k1 k2 p1 p2 k3) of an ideal pinhole pixel about the
+// principal point, radius normalised by the focal length.
+Eigen::Vector2d distort_px(const Eigen::Vector2d& ideal_px, const Eigen::Vector2d& principal_point_px, double focal_px,
+                           const std::vector<double>& k);
+
+// Projects a lab point with a true camera (distortion included).
+Eigen::Vector2d project_px(const TrueCamera& camera, const Eigen::Vector3d& lab_m);
+
+// ---- Edges ------------------------------------------------------------------
+
+// The truth as JSON (nlohmann-json); written whole (temporary name, rename).
+void write_truth_json(const std::string& path, const SynthTruth& truth);
+
+}  // namespace dropfit::synth
