@@ -1,1 +1,460 @@
-// Placeholder: implemented by the stage's work.
+// Force plate numbers. Methods:
+//
+// Zero offset: the plate is zeroed with the mat resting on it, so Fz is
+// about zero before contact; what remains (amplifier drift, a re-zero done
+// slightly off) is the trimmed mean of each resultant over the quiet part,
+// the pre-trigger samples ending quiet_guard_s before the declared trigger
+// sample (and, on a second pass, before the found contact onset): median,
+// then the mean of the samples within 3.5 robust SDs (1.4826 MAD) of it, so
+// that a spike or the first few newtons of a slow rise do not move it. The
+// noise SD is the SD of those Fz samples.
+//
+// Trigger: the first sample whose zeroed Fz reaches the threshold, with the
+// crossing instant interpolated linearly between it and the sample before.
+//
+// Contact onset: the rise of a mat's ground force starts well below the
+// trigger level. j = the last sample before the crossing within
+// onset_band_sd noise SDs of zero; the samples after it up to the first one
+// at 10 % of the peak (at least twice the threshold; at most 60 samples) are
+// the initial rise. Onset t0 is found by extrapolating that rise to zero
+// with a power law: least squares of F = c max(t - t0, 0)^p over the rise
+// and as many in-band samples before it (at least 10; the model must leave
+// them near zero), for p in {1, 1.25, 1.5, 1.75, 2, 2.5, 3} (a damped
+// contact rises linearly, Hertz-like contact as t^1.5, a contact through a
+// layer's mass as t^2 or t^3) and t0 on a grid refined to about 1/200 of the
+// searched span. A linear extrapolation alone would put a convex rise's
+// onset late by about half the time the force takes to leave the noise band.
+//
+// Peak: the largest zeroed Fz, refined by the parabola through it and its
+// neighbours. End of contact: the first sample after the peak back within
+// the noise band, the instant interpolated at the band's edge.
+//
+// Saturation: a channel at or beyond the amplifier range (when given), or a
+// channel that holds its extreme value flat for several samples after
+// arriving at it and leaving it steeply (a smooth peak flattens gradually;
+// a clipped one does not).
+#include "forceplate/forceplate.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "core/error.h"
+
+namespace dropfit::forceplate {
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+double median(std::vector<double> v) {
+  if (v.empty()) return kNaN;
+  const std::size_t mid = v.size() / 2;
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid), v.end());
+  double m = v[mid];
+  if (v.size() % 2 == 0) {
+    m = 0.5 * (m + *std::max_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid)));
+  }
+  return m;
+}
+
+struct RobustLevel {
+  double mean = 0.0;
+  double sd = 0.0;
+};
+
+// Trimmed mean and SD: samples within 3.5 robust SDs of the median.
+RobustLevel robust_level(const Eigen::VectorXd& x) {
+  std::vector<double> v(x.data(), x.data() + x.size());
+  const double med = median(v);
+  std::vector<double> dev(v.size());
+  for (std::size_t i = 0; i < v.size(); ++i) dev[i] = std::abs(v[i] - med);
+  const double sigma = 1.4826 * median(dev);
+  double sum = 0.0, sum2 = 0.0;
+  int n = 0;
+  for (double value : v) {
+    if (std::abs(value - med) <= 3.5 * sigma) {
+      sum += value;
+      sum2 += value * value;
+      ++n;
+    }
+  }
+  if (n < 2 || sigma == 0.0) {
+    // Quantised or constant: the plain mean and SD of all samples.
+    const double mean = x.mean();
+    const double sd = x.size() > 1 ? std::sqrt((x.array() - mean).square().sum() / (x.size() - 1)) : 0.0;
+    return {mean, sd};
+  }
+  const double mean = sum / n;
+  const double var = std::max(0.0, (sum2 - n * mean * mean) / (n - 1));
+  return {mean, std::sqrt(var)};
+}
+
+void check_no_nan(const Eigen::MatrixXd& data, int columns, const std::vector<std::string>& names) {
+  for (int c = 0; c < columns; ++c) {
+    for (Eigen::Index i = 0; i < data.rows(); ++i) {
+      if (!std::isfinite(data(i, c))) {
+        throw Error(fmt::format("force record: channel {} is missing a value (NaN) at sample {}", names[c], i));
+      }
+    }
+  }
+}
+
+// Throws when a channel looks clipped (see the file comment).
+void check_saturation(const Resultants& raw, const ProcessOptions& options) {
+  const Eigen::MatrixXd& x = raw.channels_n;
+  const Eigen::Index n = x.rows();
+  for (Eigen::Index c = 0; c < x.cols(); ++c) {
+    const std::string name = c < static_cast<Eigen::Index>(raw.channel_names.size())
+                                 ? raw.channel_names[c]
+                                 : fmt::format("{}", c + 1);
+    const double extreme = x.col(c).cwiseAbs().maxCoeff();
+    if (options.saturation_n > 0.0 && extreme >= options.saturation_n) {
+      Eigen::Index at = 0;
+      x.col(c).cwiseAbs().maxCoeff(&at);
+      throw Error(fmt::format("force record: channel {} saturated ({:.1f} N at sample {}, range {:.1f} N)", name,
+                              extreme, at, options.saturation_n));
+    }
+    const int flat = options.saturation_flat_samples;
+    if (flat <= 1 || extreme <= options.trigger_threshold_n) continue;
+    const double tol = 1e-6 * extreme;
+    const double steep = 0.01 * extreme;  // per sample
+    Eigen::Index i = 0;
+    while (i < n) {
+      if (std::abs(x(i, c)) < extreme - tol) {
+        ++i;
+        continue;
+      }
+      Eigen::Index end = i;
+      while (end < n && std::abs(x(end, c)) >= extreme - tol) ++end;
+      const Eigen::Index run = end - i;
+      if (run >= flat) {
+        auto mean_slope = [&](Eigen::Index from, Eigen::Index to) {  // |differences| over [from, to)
+          double sum = 0.0;
+          int k = 0;
+          for (Eigen::Index s = std::max<Eigen::Index>(from, 1); s < std::min(to, n); ++s, ++k) {
+            sum += std::abs(x(s, c) - x(s - 1, c));
+          }
+          return k > 0 ? sum / k : kNaN;
+        };
+        const double in = mean_slope(i - 3, i + 1);   // arriving: the steps up to the run's first sample
+        const double out = mean_slope(end, end + 3);  // leaving
+        const bool steep_in = std::isfinite(in) && in >= steep;
+        const bool steep_out = !std::isfinite(out) || out >= steep;
+        if (steep_in && steep_out) {
+          throw Error(fmt::format("force record: channel {} saturated (flat at {:.1f} N for samples {}-{})", name,
+                                  x(i, c), i, end - 1));
+        }
+      }
+      i = end;
+    }
+  }
+}
+
+struct Onset {
+  double t0_s = 0.0;
+  int last_in_band = 0;
+};
+
+// Power-law extrapolation of the initial rise to zero (file comment).
+Onset find_onset(const Eigen::VectorXd& t, const Eigen::VectorXd& fz, int crossing, double band_n,
+                 double upper_n) {
+  const int n = static_cast<int>(fz.size());
+  int j = crossing - 1;
+  while (j >= 0 && fz[j] > band_n) --j;
+  if (j < 0) {
+    throw Error("force record: Fz is above zero from the start of the record to the trigger (no quiet part)");
+  }
+  const int first_above = j + 1;
+  int last = first_above;
+  while (last + 1 < n && fz[last] < upper_n && last - first_above < 60) ++last;
+  // As many in-band samples before the rise as in it (at least 10): a slow
+  // rise spends many samples inside the noise band.
+  const int first = std::max(0, first_above - std::max(10, last - first_above + 1));
+  const double dt = (t[n - 1] - t[0]) / (n - 1);
+
+  // Work in samples from t[first_above] for conditioning.
+  std::vector<double> u, f;
+  double sff = 0.0;
+  for (int k = first; k <= last; ++k) {
+    u.push_back((t[k] - t[first_above]) / dt);
+    f.push_back(fz[k]);
+    sff += fz[k] * fz[k];
+  }
+  auto rss_at = [&](double u0, double p) {
+    double sfg = 0.0, sgg = 0.0;
+    for (std::size_t k = 0; k < u.size(); ++k) {
+      const double d = u[k] - u0;
+      if (d <= 0.0) continue;
+      const double g = p == 1.0 ? d : std::pow(d, p);
+      sfg += f[k] * g;
+      sgg += g * g;
+    }
+    if (sgg <= 0.0 || sfg <= 0.0) return std::numeric_limits<double>::infinity();
+    return sff - sfg * sfg / sgg;
+  };
+  const double lo = u.front();
+  const double hi = 0.0;  // the first above-band sample is already in contact
+  const double coarse = (hi - lo) / 100.0;
+  double best_rss = std::numeric_limits<double>::infinity();
+  double best_u0 = (t[j] - t[first_above]) / dt;
+  for (double p : {1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0}) {
+    double u_best = lo, r_best = std::numeric_limits<double>::infinity();
+    for (int k = 0; k < 100; ++k) {
+      const double u0 = lo + k * coarse;
+      const double r = rss_at(u0, p);
+      if (r < r_best) r_best = r, u_best = u0;
+    }
+    const double from = std::max(lo, u_best - coarse), to = std::min(hi, u_best + coarse);
+    for (int k = 0; k <= 40; ++k) {
+      const double u0 = std::min(from + k * (to - from) / 40.0, hi - 1e-6);
+      const double r = rss_at(u0, p);
+      if (r < r_best) r_best = r, u_best = u0;
+    }
+    if (r_best < best_rss) best_rss = r_best, best_u0 = u_best;
+  }
+  return {t[first_above] + best_u0 * dt, j};
+}
+
+}  // namespace
+
+const std::vector<std::string>& eight_channel_names() {
+  static const std::vector<std::string> names{"Fx12", "Fx34", "Fy14", "Fy23", "Fz1", "Fz2", "Fz3", "Fz4"};
+  return names;
+}
+
+Eigen::MatrixXd centre_of_pressure(const Eigen::MatrixXd& f_n, const Eigen::MatrixXd& m_n_m, double az0_m,
+                                   double cop_min_fz_n) {
+  const Eigen::Index n = f_n.rows();
+  Eigen::MatrixXd cop(n, 2);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const double fz = f_n(i, 2);
+    if (std::abs(fz) >= cop_min_fz_n && fz != 0.0) {
+      cop(i, 0) = (f_n(i, 0) * az0_m - m_n_m(i, 1)) / fz;
+      cop(i, 1) = (f_n(i, 1) * az0_m + m_n_m(i, 0)) / fz;
+    } else {
+      cop(i, 0) = cop(i, 1) = kNaN;
+    }
+  }
+  return cop;
+}
+
+Resultants from_eight_channels(const Eigen::VectorXd& t_s, const Eigen::MatrixXd& channels,
+                               const PlateGeometry& plate, double cop_min_fz_n) {
+  if (channels.cols() != 8) {
+    throw Error(fmt::format("force record: expected 8 channels (Fx12 Fx34 Fy14 Fy23 Fz1 Fz2 Fz3 Fz4), got {}",
+                            channels.cols()));
+  }
+  if (t_s.size() != channels.rows()) {
+    throw Error(fmt::format("force record: {} times for {} samples", t_s.size(), channels.rows()));
+  }
+  check_no_nan(channels, 8, eight_channel_names());
+  const double a = plate.a_m, b = plate.b_m;
+  const auto fx12 = channels.col(0), fx34 = channels.col(1), fy14 = channels.col(2), fy23 = channels.col(3);
+  const auto fz1 = channels.col(4), fz2 = channels.col(5), fz3 = channels.col(6), fz4 = channels.col(7);
+  Resultants r;
+  r.t_s = t_s;
+  r.f_n.resize(channels.rows(), 3);
+  r.m_n_m.resize(channels.rows(), 3);
+  r.f_n.col(0) = fx12 + fx34;
+  r.f_n.col(1) = fy14 + fy23;
+  r.f_n.col(2) = fz1 + fz2 + fz3 + fz4;
+  r.m_n_m.col(0) = b * (fz1 + fz2 - fz3 - fz4);
+  r.m_n_m.col(1) = a * (-fz1 + fz2 + fz3 - fz4);
+  r.m_n_m.col(2) = b * (-fx12 + fx34) + a * (fy14 - fy23);
+  r.az0_m = plate.az0_m;
+  r.cop_m = centre_of_pressure(r.f_n, r.m_n_m, plate.az0_m, cop_min_fz_n);
+  r.channels_n = channels;
+  r.channel_names = eight_channel_names();
+  return r;
+}
+
+Resultants from_resultant_columns(const Eigen::VectorXd& t_s, const Eigen::MatrixXd& columns,
+                                  double cop_min_fz_n, double az0_m) {
+  if (columns.cols() < 8) {
+    throw Error(fmt::format("force record: expected the columns Fx Fy Fz Mx My Mz Ax Ay, got {} columns",
+                            columns.cols()));
+  }
+  if (t_s.size() != columns.rows()) {
+    throw Error(fmt::format("force record: {} times for {} samples", t_s.size(), columns.rows()));
+  }
+  static const std::vector<std::string> names{"Fx", "Fy", "Fz", "Mx", "My", "Mz"};
+  check_no_nan(columns, 6, names);
+  Resultants r;
+  r.t_s = t_s;
+  r.f_n = columns.leftCols(3);
+  r.m_n_m = columns.middleCols(3, 3);
+  r.cop_m = columns.middleCols(6, 2);
+  for (Eigen::Index i = 0; i < columns.rows(); ++i) {
+    if (!(std::abs(r.f_n(i, 2)) >= cop_min_fz_n)) r.cop_m.row(i).setConstant(kNaN);
+  }
+  r.az0_m = az0_m;
+  r.channels_n = columns.leftCols(6);
+  r.channel_names = names;
+  return r;
+}
+
+ForceTrial process(const Resultants& raw, const ProcessOptions& options) {
+  const Eigen::Index n_rows = raw.f_n.rows();
+  if (n_rows < 8 || raw.f_n.cols() != 3 || raw.m_n_m.rows() != n_rows || raw.m_n_m.cols() != 3 ||
+      raw.t_s.size() != n_rows) {
+    throw Error(fmt::format("force record: malformed resultants ({} samples)", n_rows));
+  }
+  const int n = static_cast<int>(n_rows);
+  {
+    std::vector<std::string> names{"Fx", "Fy", "Fz"};
+    check_no_nan(raw.f_n, 3, names);
+    names = {"Mx", "My", "Mz"};
+    check_no_nan(raw.m_n_m, 3, names);
+  }
+  for (int i = 1; i < n; ++i) {
+    if (!(raw.t_s[i] > raw.t_s[i - 1])) {
+      throw Error(fmt::format("force record: time does not increase at sample {}", i));
+    }
+  }
+  const double dt = (raw.t_s[n - 1] - raw.t_s[0]) / (n - 1);
+  if (options.sample_rate_hz > 0.0 && std::abs(dt * options.sample_rate_hz - 1.0) > 0.01) {
+    throw Error(fmt::format("force record: samples are {:.6f} s apart, but the sample rate is {} Hz", dt,
+                            options.sample_rate_hz));
+  }
+  if (raw.channels_n.size() > 0) check_saturation(raw, options);
+
+  const int declared = options.pretrigger_samples >= 0
+                           ? options.pretrigger_samples
+                           : static_cast<int>(std::lround(options.pretrigger_fraction * n));
+  if (declared >= n) {
+    throw Error(fmt::format("force record: {} pre-trigger samples declared, but the record has only {}", declared, n));
+  }
+  const int guard = static_cast<int>(std::lround(options.quiet_guard_s / dt));
+  int quiet_end = declared - guard;  // exclusive
+  if (quiet_end < options.min_quiet_samples) {
+    throw Error(fmt::format(
+        "force record: too few pre-trigger samples for a zero offset ({} before the trigger; need {} quiet samples "
+        "plus {} s before the trigger)",
+        declared, options.min_quiet_samples, options.quiet_guard_s));
+  }
+
+  ForceTrial out;
+  out.declared_trigger_index = declared;
+  const double t_zero = raw.t_s[declared];
+  const double band_sd = options.onset_band_sd;
+
+  for (int pass = 0; pass < 2; ++pass) {
+    // Zero offset and noise from the quiet part [0, quiet_end).
+    for (int c = 0; c < 6; ++c) {
+      const Eigen::VectorXd col = c < 3 ? raw.f_n.col(c).head(quiet_end) : raw.m_n_m.col(c - 3).head(quiet_end);
+      const RobustLevel level = robust_level(col);
+      out.offset[c] = level.mean;
+      if (c == 2) out.noise_n = std::max(level.sd, options.min_noise_n);
+    }
+    out.quiet_samples = quiet_end;
+    out.plate.t_s = raw.t_s.array() - t_zero;
+    out.plate.f_n = raw.f_n.rowwise() - out.offset.head<3>().transpose();
+    out.plate.m_n_m = raw.m_n_m.rowwise() - out.offset.tail<3>().transpose();
+    const Eigen::VectorXd fz = out.plate.f_n.col(2);
+    const Eigen::VectorXd& t = out.plate.t_s;
+
+    // Trigger crossing.
+    int crossing = -1;
+    for (int i = 0; i < n; ++i) {
+      if (fz[i] >= options.trigger_threshold_n) {
+        crossing = i;
+        break;
+      }
+    }
+    if (crossing < 0) {
+      throw Error(fmt::format("force record: no trigger (zeroed Fz never reaches {} N; largest {:.1f} N)",
+                              options.trigger_threshold_n, fz.maxCoeff()));
+    }
+    out.trigger_index = crossing;
+    out.trigger_time_s = t[crossing];
+    if (crossing > 0) {
+      const double f0 = fz[crossing - 1], f1 = fz[crossing];
+      out.trigger_time_s = t[crossing - 1] + (options.trigger_threshold_n - f0) / (f1 - f0) * (t[crossing] - t[crossing - 1]);
+    }
+    if (std::abs(t[crossing]) > options.max_trigger_mismatch_s + 0.5 * dt) {
+      throw Error(fmt::format(
+          "force record: Fz first reaches {} N at sample {} ({:+.1f} ms from the declared trigger sample {}): the "
+          "pre-trigger share does not match the record",
+          options.trigger_threshold_n, crossing, 1e3 * t[crossing], declared));
+    }
+
+    // Contact onset.
+    const double band = band_sd * out.noise_n;
+    const double peak = fz.tail(n - crossing).maxCoeff();
+    const double upper = std::max({2.0 * options.trigger_threshold_n, 2.0 * band, 0.1 * peak});
+    const Onset onset = find_onset(t, fz, crossing, band, upper);
+    out.contact_time_s = onset.t0_s;
+    out.contact_index = static_cast<int>(std::lower_bound(t.data(), t.data() + n, onset.t0_s) - t.data());
+
+    // The quiet part must end before the rise: redo once if it did not.
+    const int safe_end = onset.last_in_band - 5;
+    if (pass == 0 && safe_end < quiet_end) {
+      if (safe_end < options.min_quiet_samples) {
+        throw Error(fmt::format(
+            "force record: too few quiet pre-trigger samples for a zero offset (the rise starts at sample {})",
+            onset.last_in_band));
+      }
+      quiet_end = safe_end;
+      continue;
+    }
+
+    // Peak (parabolic refinement).
+    int ip = crossing;
+    for (int i = crossing; i < n; ++i) {
+      if (fz[i] > fz[ip]) ip = i;
+    }
+    out.peak_fz_n = fz[ip];
+    out.peak_time_s = t[ip];
+    if (ip > 0 && ip + 1 < n) {
+      const double ym = fz[ip - 1], y0 = fz[ip], yp = fz[ip + 1];
+      const double curv = ym - 2.0 * y0 + yp;
+      if (curv < 0.0) {
+        const double d = 0.5 * (ym - yp) / curv;
+        out.peak_fz_n = y0 - 0.25 * (ym - yp) * d;
+        out.peak_time_s = t[ip] + d * dt;
+      }
+    }
+    out.time_to_peak_s = out.peak_time_s - out.contact_time_s;
+
+    // End of contact.
+    out.end_found = false;
+    out.end_index = n - 1;
+    out.end_time_s = t[n - 1];
+    for (int i = ip + 1; i < n; ++i) {
+      if (fz[i] <= band) {
+        out.end_found = true;
+        out.end_index = i;
+        const double f0 = fz[i - 1], f1 = fz[i];
+        out.end_time_s = t[i - 1] + (f0 - band) / (f0 - f1) * (t[i] - t[i - 1]);
+        break;
+      }
+    }
+    break;
+  }
+
+  // Centre of pressure of the zeroed resultants.
+  if (std::isfinite(raw.az0_m)) {
+    out.plate.cop_m = centre_of_pressure(out.plate.f_n, out.plate.m_n_m, raw.az0_m, options.cop_min_fz_n);
+  } else {
+    out.plate.cop_m = raw.cop_m.rows() == n ? raw.cop_m : Eigen::MatrixXd::Constant(n, 2, kNaN);
+    for (int i = 0; i < n; ++i) {
+      if (!(std::abs(out.plate.f_n(i, 2)) >= options.cop_min_fz_n)) out.plate.cop_m.row(i).setConstant(kNaN);
+    }
+  }
+  out.plate.az0_m = raw.az0_m;
+  out.plate.channels_n = raw.channels_n;
+  out.plate.channel_names = raw.channel_names;
+  return out;
+}
+
+std::string ForceTrial::report() const {
+  return fmt::format(
+      "force: offset Fz {:.2f} N (noise SD {:.2f} N over {} quiet samples); trigger crossing {:+.2f} ms; "
+      "contact {:+.2f} ms; peak {:.1f} N at {:+.2f} ms ({:.2f} ms after contact); end of contact {}{:.2f} ms",
+      offset[2], noise_n, quiet_samples, 1e3 * trigger_time_s, 1e3 * contact_time_s, peak_fz_n, 1e3 * peak_time_s,
+      1e3 * time_to_peak_s, end_found ? "" : "not found, record ends at ", 1e3 * end_time_s);
+}
+
+}  // namespace dropfit::forceplate

@@ -1,62 +1,123 @@
 #pragma once
-// Force plate: Kistler eight-channel signals to resultant forces, moments
-// and centre of pressure (Kistler's standard formulas, as in
-// shared/spec/session-format.md), zero offset from the quiet pre-trigger
-// part, the trigger instant and the contact onset found from the force.
+// Force plate: Kistler eight-channel signals (or BioWare's computed
+// resultants) to resultant forces, moments and centre of pressure; the zero
+// offset from the quiet pre-trigger part; the trigger instant, the contact
+// onset found from the force itself, the peak and the end of contact.
+//
+// Kistler's standard eight-channel formulas (Kistler multicomponent force
+// plate manual; as in shared/spec/session-format.md), a, b, az0 from the
+// plate's certificate:
 //
 //   Fx = Fx12 + Fx34   Fy = Fy14 + Fy23   Fz = Fz1 + Fz2 + Fz3 + Fz4
 //   Mx = b (Fz1 + Fz2 - Fz3 - Fz4)       My = a (-Fz1 + Fz2 + Fz3 - Fz4)
 //   Mz = b (-Fx12 + Fx34) + a (Fy14 - Fy23)
 //   ax = (Fx az0 - My) / Fz              ay = (Fy az0 + Mx) / Fz
 //
-// Time on the force clock: t = 0 at the trigger sample.
+// The centre of pressure is only computed where |Fz| reaches an explicit
+// threshold (NaN elsewhere): below it the quotient is noise over noise.
+//
+// Time on the force clock: t = 0 at the trigger sample, i.e. the sample the
+// acquisition declared as its trigger (index = pretrigger samples). The
+// eight-channel export already has t = 0 there; an absolute BioWare time
+// column is rebased to it by process().
 #include <Eigen/Core>
+#include <limits>
 #include <string>
+#include <vector>
 
 namespace dropfit::forceplate {
 
 struct PlateGeometry {
   double a_m = 0.120;
   double b_m = 0.200;
-  double az0_m = -0.040;
+  double az0_m = -0.040;  // negative: top surface above the sensor plane
 };
 
-// Resultants, one row per sample; NaN COP where |Fz| is below the threshold.
+// Resultants, one row per sample.
 struct Resultants {
-  Eigen::VectorXd t_s;     // force clock, trigger at 0
+  Eigen::VectorXd t_s;     // as recorded (process() rebases it to the force clock)
   Eigen::MatrixXd f_n;     // n x 3: Fx Fy Fz
-  Eigen::MatrixXd m_n_m;   // n x 3: Mx My Mz
-  Eigen::MatrixXd cop_m;   // n x 2: ax ay (plate frame, from the plate centre)
+  Eigen::MatrixXd m_n_m;   // n x 3: Mx My Mz (about the plate centre, sensor plane)
+  Eigen::MatrixXd cop_m;   // n x 2: ax ay (plate frame, from the plate centre); NaN where |Fz| < threshold
+  // Sensor-plane offset used for the COP. When finite, process() recomputes
+  // the COP from the zeroed forces and moments; NaN keeps the COP as given
+  // (BioWare's Ax Ay), masked by the zeroed |Fz|.
+  double az0_m = std::numeric_limits<double>::quiet_NaN();
+  // The signals as recorded (n x k) and their names, for the saturation
+  // check: the eight channels, or Fx Fy Fz Mx My Mz for BioWare records.
+  Eigen::MatrixXd channels_n;
+  std::vector<std::string> channel_names;
 };
 
-// channels: n x 8 (Fx12 Fx34 Fy14 Fy23 Fz1 Fz2 Fz3 Fz4).
+// Names of the eight channels, in column order.
+const std::vector<std::string>& eight_channel_names();
+
+// Centre of pressure (n x 2, ax ay) from forces and moments:
+// ax = (Fx az0 - My) / Fz, ay = (Fy az0 + Mx) / Fz where |Fz| >= cop_min_fz_n, NaN elsewhere.
+Eigen::MatrixXd centre_of_pressure(const Eigen::MatrixXd& f_n, const Eigen::MatrixXd& m_n_m, double az0_m,
+                                   double cop_min_fz_n);
+
+// channels: n x 8 (Fx12 Fx34 Fy14 Fy23 Fz1 Fz2 Fz3 Fz4) in newtons.
+// Throws dropfit::Error on a wrong column count, a length mismatch with t_s,
+// or a NaN in a channel (naming the channel and sample).
 Resultants from_eight_channels(const Eigen::VectorXd& t_s, const Eigen::MatrixXd& channels,
                                const PlateGeometry& plate, double cop_min_fz_n = 50.0);
 
+// The BioWare layout (capture::ForceRecord with layout Resultants):
+// columns n x 8 (Fx Fy Fz in N, Mx My Mz in N m, Ax Ay in m), extra columns
+// ignored. Ax Ay are kept where |Fz| >= cop_min_fz_n (NaN elsewhere); pass the
+// plate's az0 to have process() recompute them from the zeroed resultants.
+// Throws dropfit::Error on too few columns or a NaN in Fx..Mz.
+Resultants from_resultant_columns(const Eigen::VectorXd& t_s, const Eigen::MatrixXd& columns,
+                                  double cop_min_fz_n = 50.0,
+                                  double az0_m = std::numeric_limits<double>::quiet_NaN());
+
 struct ProcessOptions {
   double trigger_threshold_n = 25.0;
-  double pretrigger_fraction = 0.10;
-  double sample_rate_hz = 1000.0;
+  double pretrigger_fraction = 0.10;  // share of the record before the trigger sample
+  int pretrigger_samples = -1;        // from the record's header when known; overrides the fraction
+  double sample_rate_hz = 1000.0;     // nominal; the time column must agree within 1 %
+  // The first threshold crossing must lie within this of the declared trigger sample.
+  double max_trigger_mismatch_s = 0.010;
+  // Zero offset and noise from the pre-trigger samples ending this long
+  // before the trigger (and before the contact onset): the quiet part.
+  double quiet_guard_s = 0.050;
+  int min_quiet_samples = 50;
+  double onset_band_sd = 3.0;         // "at zero" means within this many noise SDs
+  double min_noise_n = 0.05;          // floor on the noise SD (quantised or noiseless records)
   double cop_min_fz_n = 50.0;
-  // Channels saturate at this magnitude (amplifier range); 0 disables.
+  // A channel at or beyond this magnitude is saturated (amplifier range); 0 disables.
   double saturation_n = 0.0;
+  // Independently of saturation_n: a channel that holds its extreme value for
+  // this many samples or more after arriving at it steeply is clipped.
+  int saturation_flat_samples = 4;
 };
 
 struct ForceTrial {
-  Resultants plate;              // zeroed
-  Eigen::Vector3d offset_n;      // removed zero offset (Fx Fy Fz)
+  Resultants plate;              // zeroed, t_s on the force clock
+  Eigen::Matrix<double, 6, 1> offset = Eigen::Matrix<double, 6, 1>::Zero();  // removed (Fx Fy Fz N, Mx My Mz N m)
   double noise_n = 0.0;          // SD of Fz in the quiet pre-trigger part
-  double trigger_time_s = 0.0;   // first crossing of the threshold, force clock
-  int trigger_index = 0;
-  double contact_time_s = 0.0;   // onset of the rise, before the trigger crossing
-  int contact_index = 0;
-  double peak_fz_n = 0.0;
+  int quiet_samples = 0;         // samples the offset and noise came from
+  int declared_trigger_index = 0;  // the record's trigger sample (t = 0)
+  double trigger_time_s = 0.0;   // first crossing of the threshold (interpolated), force clock
+  int trigger_index = 0;         // first sample at or above the threshold
+  double contact_time_s = 0.0;   // onset of the rise, before the trigger crossing, force clock
+  int contact_index = 0;         // first sample at or after contact_time_s
+  double peak_fz_n = 0.0;        // largest Fz (parabolic sub-sample refinement)
+  double peak_time_s = 0.0;      // force clock
   double time_to_peak_s = 0.0;   // from contact
-  double end_time_s = 0.0;       // Fz back below the noise band after the peak
+  double end_time_s = 0.0;       // Fz back within the noise band after the peak (interpolated)
+  int end_index = 0;             // first sample at or after end_time_s (n - 1 if never)
+  bool end_found = false;        // false when Fz never returned to zero within the record
+
+  std::string report() const;
 };
 
-// Zeroes, finds trigger and contact. Throws dropfit::Error when the record
-// has no trigger crossing, is saturated, or its pre-trigger part is missing.
+// Zeroes, finds the trigger crossing, the contact onset, the peak and the end
+// of contact (methods in forceplate.cpp's comments). Throws dropfit::Error
+// when a force or moment is NaN, a channel is saturated, the pre-trigger part
+// is too short for a zero offset, there is no trigger crossing, or the
+// crossing is far from the declared trigger sample.
 ForceTrial process(const Resultants& raw, const ProcessOptions& options);
 
 }  // namespace dropfit::forceplate

@@ -1,1 +1,637 @@
-// Placeholder: implemented by the stage's work.
+// One drop trial: methods in trial.h.
+#include "trial/trial.h"
+
+#include <fmt/format.h>
+
+#include <Eigen/Dense>
+#include <Eigen/SVD>
+#include <algorithm>
+#include <cmath>
+#include <optional>
+#include <vector>
+
+#include "core/error.h"
+
+namespace dropfit::trial {
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr double kPi = 3.14159265358979323846;
+
+// Continued fraction of the regularised incomplete beta function (modified
+// Lentz's method; Press et al., Numerical Recipes, 3rd ed., sec. 6.4).
+double beta_continued_fraction(double a, double b, double x) {
+  constexpr double tiny = 1e-300;
+  const double qab = a + b, qap = a + 1.0, qam = a - 1.0;
+  double c = 1.0, d = 1.0 - qab * x / qap;
+  if (std::abs(d) < tiny) d = tiny;
+  d = 1.0 / d;
+  double h = d;
+  for (int m = 1; m <= 300; ++m) {
+    const int m2 = 2 * m;
+    double aa = m * (b - m) * x / ((qam + m2) * (a + m2));
+    d = 1.0 + aa * d;
+    if (std::abs(d) < tiny) d = tiny;
+    c = 1.0 + aa / c;
+    if (std::abs(c) < tiny) c = tiny;
+    d = 1.0 / d;
+    h *= d * c;
+    aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2));
+    d = 1.0 + aa * d;
+    if (std::abs(d) < tiny) d = tiny;
+    c = 1.0 + aa / c;
+    if (std::abs(c) < tiny) c = tiny;
+    d = 1.0 / d;
+    const double del = d * c;
+    h *= del;
+    if (std::abs(del - 1.0) < 1e-15) break;
+  }
+  return h;
+}
+
+double incomplete_beta(double a, double b, double x) {
+  if (x <= 0.0) return 0.0;
+  if (x >= 1.0) return 1.0;
+  const double front =
+      std::exp(std::lgamma(a + b) - std::lgamma(a) - std::lgamma(b) + a * std::log(x) + b * std::log1p(-x));
+  if (x < (a + 1.0) / (a + b + 2.0)) return front * beta_continued_fraction(a, b, x) / a;
+  return 1.0 - front * beta_continued_fraction(b, a, 1.0 - x) / b;
+}
+
+double student_t_cdf(double t, double dof) {
+  const double tail = 0.5 * incomplete_beta(0.5 * dof, 0.5, dof / (dof + t * t));
+  return t >= 0.0 ? 1.0 - tail : tail;
+}
+
+// A unit vector whose angle from vertical is the base's tilt (trial.h):
+// the plane normal (three or more points) or the normal of the base line
+// within its vertical plane (two points); oriented upwards. NaN if missing.
+Eigen::Vector3d base_up_vector(const std::vector<Eigen::Vector3d>& p) {
+  const Eigen::Vector3d none = Eigen::Vector3d::Constant(kNaN);
+  if (p.size() < 2) return none;
+  for (const auto& q : p) {
+    if (!q.allFinite()) return none;
+  }
+  if (p.size() == 2) {
+    const Eigen::Vector3d d = p[1] - p[0];
+    const double len = d.norm();
+    const double h = std::hypot(d.x(), d.y());
+    if (len <= 0.0) return none;
+    if (h <= 0.0) return Eigen::Vector3d(1.0, 0.0, 0.0);  // vertical base line: 90 degrees
+    const double dz = d.z() / len, hx = d.x() / h, hy = d.y() / h, hn = h / len;
+    return Eigen::Vector3d(-dz * hx, -dz * hy, hn);
+  }
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (const auto& q : p) centroid += q;
+  centroid /= static_cast<double>(p.size());
+  Eigen::MatrixXd a(p.size(), 3);
+  for (std::size_t i = 0; i < p.size(); ++i) a.row(static_cast<Eigen::Index>(i)) = (p[i] - centroid).transpose();
+  Eigen::JacobiSVD<Eigen::MatrixXd> svd(a, Eigen::ComputeFullV);
+  Eigen::Vector3d n = svd.matrixV().col(2);
+  if (n.z() < 0.0) n = -n;
+  return n;
+}
+
+double angle_from_vertical_deg(const Eigen::Vector3d& v) {
+  const double len = v.norm();
+  if (!(len > 0.0)) return kNaN;
+  return std::acos(std::clamp(std::abs(v.z()) / len, 0.0, 1.0)) * 180.0 / kPi;
+}
+
+// Linear interpolation of samples (uniform grid from t0 with step dt) at t;
+// NaN outside or when a neighbour is NaN.
+double interpolate_uniform(const Eigen::VectorXd& y, double t0, double dt, double t) {
+  const double u = (t - t0) / dt;
+  const Eigen::Index n = y.size();
+  if (!(u >= 0.0) || u > static_cast<double>(n - 1)) return kNaN;
+  const Eigen::Index i = std::min<Eigen::Index>(static_cast<Eigen::Index>(std::floor(u)), n - 1);
+  const double w = u - static_cast<double>(i);
+  if (w == 0.0 || i + 1 >= n) return y[i];
+  return (1.0 - w) * y[i] + w * y[i + 1];
+}
+
+// Trapezoid integral of f(t) (samples on t) from a to b, ends interpolated.
+double integrate(const Eigen::VectorXd& t, const Eigen::VectorXd& f, double a, double b) {
+  if (!(b > a)) return 0.0;
+  const Eigen::Index n = t.size();
+  auto at = [&](double x) {
+    const Eigen::Index k = std::upper_bound(t.data(), t.data() + n, x) - t.data();
+    if (k <= 0) return f[0];
+    if (k >= n) return f[n - 1];
+    const double w = (x - t[k - 1]) / (t[k] - t[k - 1]);
+    return (1.0 - w) * f[k - 1] + w * f[k];
+  };
+  double sum = 0.0, prev_t = a, prev_f = at(a);
+  for (Eigen::Index k = std::upper_bound(t.data(), t.data() + n, a) - t.data(); k < n && t[k] < b; ++k) {
+    sum += 0.5 * (prev_f + f[k]) * (t[k] - prev_t);
+    prev_t = t[k];
+    prev_f = f[k];
+  }
+  sum += 0.5 * (prev_f + at(b)) * (b - prev_t);
+  return sum;
+}
+
+std::string join(const std::vector<std::string>& parts, const char* sep) {
+  std::string out;
+  for (const auto& p : parts) {
+    if (!out.empty()) out += sep;
+    out += p;
+  }
+  return out;
+}
+
+struct Fit2 {
+  double z = 0.0, v = 0.0;
+  Eigen::Matrix2d xtx_inv = Eigen::Matrix2d::Zero();
+  double rss = 0.0;
+};
+
+// Least squares of y = z + v tau over the flagged points.
+std::optional<Fit2> line_fit(const std::vector<double>& tau, const std::vector<double>& y,
+                             const std::vector<char>& use) {
+  Eigen::Matrix2d xtx = Eigen::Matrix2d::Zero();
+  Eigen::Vector2d xty = Eigen::Vector2d::Zero();
+  int n = 0;
+  for (std::size_t i = 0; i < tau.size(); ++i) {
+    if (!use[i]) continue;
+    xtx(0, 0) += 1.0;
+    xtx(0, 1) += tau[i];
+    xtx(1, 1) += tau[i] * tau[i];
+    xty(0) += y[i];
+    xty(1) += tau[i] * y[i];
+    ++n;
+  }
+  xtx(1, 0) = xtx(0, 1);
+  const double det = xtx.determinant();
+  if (n < 3 || !(det > 1e-12 * xtx(0, 0) * xtx(1, 1))) return std::nullopt;
+  Fit2 fit;
+  fit.xtx_inv = xtx.inverse();
+  const Eigen::Vector2d beta = fit.xtx_inv * xty;
+  fit.z = beta(0);
+  fit.v = beta(1);
+  for (std::size_t i = 0; i < tau.size(); ++i) {
+    if (!use[i]) continue;
+    const double r = y[i] - fit.z - fit.v * tau[i];
+    fit.rss += r * r;
+  }
+  return fit;
+}
+
+TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string& force_error,
+                         const reconstruction::Trajectories& markers, const TrialOptions& o) {
+  // Options a user must fix.
+  if (!(o.frame_rate_hz > 0.0)) throw Error(fmt::format("trial {}: frame rate must be positive", o.id));
+  if (!(o.impactor_mass_kg > 0.0)) throw Error(fmt::format("trial {}: impactor mass must be positive", o.id));
+  if (o.base_markers.empty()) throw Error(fmt::format("trial {}: no impactor base markers named", o.id));
+  if (markers.lab_m.cols() % 3 != 0) {
+    throw Error(fmt::format("trial {}: trajectories have {} columns, not 3 per point", o.id, markers.lab_m.cols()));
+  }
+  const int n_points = static_cast<int>(markers.lab_m.cols() / 3);
+  auto check_index = [&](int p, const char* what) {
+    if (p < 0 || p >= n_points) {
+      throw Error(fmt::format("trial {}: {} marker index {} is not among the {} points", o.id, what, p, n_points));
+    }
+  };
+  for (int p : o.base_markers) check_index(p, "base");
+  for (int p : o.surface_markers) check_index(p, "surface");
+  auto name = [&](int p) {
+    return p < static_cast<int>(o.point_names.size()) ? o.point_names[p] : fmt::format("point {}", p + 1);
+  };
+
+  TrialResult res;
+  res.id = o.id;
+  std::vector<std::string> reasons;
+  if (!force_error.empty()) reasons.push_back(force_error);
+
+  const double fps = o.frame_rate_hz, dt_v = 1.0 / fps, g = o.gravity_m_s2, top = o.mat_top_z_m;
+  const int nf = static_cast<int>(markers.lab_m.rows());
+  auto t_video = [&](double frame) { return (frame - o.trigger_frame) * dt_v; };
+  auto frame_at = [&](double t_v) { return t_v * fps + o.trigger_frame; };
+
+  // Face height and surface height per frame.
+  Eigen::VectorXd h(nf), surf(nf);
+  for (int i = 0; i < nf; ++i) {
+    double sum = 0.0;
+    bool all = true;
+    for (int p : o.base_markers) {
+      const double z = markers.lab_m(i, 3 * p + 2);
+      all = all && std::isfinite(z);
+      sum += z;
+    }
+    h[i] = all ? sum / static_cast<double>(o.base_markers.size()) - o.base_marker_height_m : kNaN;
+    sum = 0.0;
+    all = !o.surface_markers.empty();
+    for (int p : o.surface_markers) {
+      const double z = markers.lab_m(i, 3 * p + 2);
+      all = all && std::isfinite(z);
+      sum += z;
+    }
+    surf[i] = all ? sum / static_cast<double>(o.surface_markers.size()) : kNaN;
+  }
+
+  if (force) {
+    res.contact_time_s = force->contact_time_s;
+    res.peak_force_n = force->peak_fz_n;
+    res.time_to_peak_s = force->time_to_peak_s;
+    res.end_time_s = force->end_time_s;
+  }
+
+  // The frame where the face first appears below the mat top (after a frame
+  // above it, and staying below in most of the next three present frames);
+  // with a force record, the candidate nearest the force's contact.
+  int crossing = -1;
+  {
+    const double nominal = force ? frame_at(force->contact_time_s) : kNaN;
+    int last_above = -1;
+    for (int i = 0; i < nf; ++i) {
+      if (!std::isfinite(h[i])) continue;
+      if (h[i] >= top) {
+        last_above = i;
+        continue;
+      }
+      if (last_above < 0) continue;
+      int seen = 0, below = 0;
+      for (int k = i + 1; k < nf && seen < 3; ++k) {
+        if (!std::isfinite(h[k])) continue;
+        ++seen;
+        below += h[k] < top;
+      }
+      if (seen > 0 && 2 * below < seen) continue;  // a stray frame
+      if (crossing < 0 || (std::isfinite(nominal) && std::abs(i - nominal) < std::abs(crossing - nominal))) {
+        crossing = i;
+      }
+      if (!std::isfinite(nominal)) break;
+      last_above = -1;  // the next candidate needs a new approach from above
+    }
+  }
+
+  // Free-fall fit and the video contact instant.
+  FreeFallFit ff;
+  if (crossing >= 0) {
+    const double t_cross = t_video(crossing);
+    std::vector<double> ts, zs;
+    for (int i = crossing - 1; i >= 0 && t_video(i) >= t_cross - o.freefall_window_s; --i) {
+      if (std::isfinite(h[i]) && h[i] >= top + o.freefall_clearance_m) {
+        ts.push_back(t_video(i));
+        zs.push_back(h[i]);
+      }
+    }
+    ff = fit_free_fall(Eigen::Map<Eigen::VectorXd>(ts.data(), static_cast<Eigen::Index>(ts.size())),
+                       Eigen::Map<Eigen::VectorXd>(zs.data(), static_cast<Eigen::Index>(zs.size())), g, top,
+                       t_cross);
+    res.freefall_frames = ff.n_frames;
+    if (static_cast<int>(ts.size()) < o.min_freefall_frames) {
+      std::vector<std::string> names;
+      for (int p : o.base_markers) names.push_back(name(p));
+      reasons.push_back(fmt::format("video: only {} free-fall frames of the base markers ({}) in the {:.0f} ms before "
+                                    "contact (need {})",
+                                    ts.size(), join(names, ", "), 1e3 * o.freefall_window_s, o.min_freefall_frames));
+    } else if (!ff.ok) {
+      reasons.push_back("video: the free-fall fit before contact does not reach the mat top");
+    }
+    if (ff.ok) {
+      res.impact_velocity_m_s = ff.contact_speed_m_s;
+      res.impact_velocity_ci_m_s = ff.contact_speed_ci_m_s;
+      res.video_contact_time_s = ff.contact_time_s;
+      res.freefall_rms_m = ff.rms_m;
+    }
+  } else {
+    reasons.push_back(fmt::format("video: the impactor's contact face is never seen reaching the mat top (z = {:.3f} m)",
+                                  top));
+  }
+
+  // Clock offset.
+  if (force && ff.ok) {
+    res.video_offset_s = ff.contact_time_s - force->contact_time_s;
+    if (std::abs(res.video_offset_s) > o.max_video_offset_s) {
+      reasons.push_back(fmt::format(
+          "video and force disagree on the contact instant by {:.1f} ms (limit {:.1f} ms): check [video].trigger_frame",
+          1e3 * res.video_offset_s, 1e3 * o.max_video_offset_s));
+    }
+  }
+  const double offset = std::isfinite(res.video_offset_s) ? res.video_offset_s : 0.0;
+
+  // The contact on the video clock.
+  double start_v = kNaN, end_v = kNaN;
+  if (ff.ok) {
+    start_v = ff.contact_time_s;
+  } else if (force) {
+    start_v = force->contact_time_s + offset;
+  } else if (crossing >= 0) {
+    start_v = t_video(crossing - 0.5);
+  }
+  if (force && force->end_found) {
+    end_v = force->end_time_s + offset;
+  } else if (std::isfinite(start_v)) {
+    end_v = t_video(nf - 1);
+    for (int i = std::max(0, static_cast<int>(std::ceil(frame_at(start_v)))) + 1; i < nf; ++i) {
+      if (std::isfinite(h[i]) && h[i] >= top) {
+        end_v = t_video(i);
+        break;
+      }
+    }
+  }
+
+  if (std::isfinite(start_v) && end_v > start_v) {
+    const int first = static_cast<int>(std::ceil(frame_at(start_v)));
+    const int last = static_cast<int>(std::floor(frame_at(end_v)));
+
+    // Marker coverage from coverage_lead_s before contact to the end of contact.
+    {
+      const int c0 = static_cast<int>(std::ceil(frame_at(start_v - o.coverage_lead_s)));
+      const int total = std::max(1, last - c0 + 1);
+      std::vector<std::string> missing;
+      for (int p : o.base_markers) {
+        int present = 0, gap = 0, longest = 0;
+        for (int i = c0; i <= last; ++i) {
+          const bool ok = i >= 0 && i < nf && std::isfinite(markers.lab_m(i, 3 * p + 2));
+          present += ok;
+          gap = ok ? 0 : gap + 1;
+          longest = std::max(longest, gap);
+        }
+        const double share = static_cast<double>(present) / total;
+        if (share < o.min_marker_coverage || longest * dt_v > o.max_marker_gap_s + 1e-9) {
+          missing.push_back(fmt::format("{} ({:.0f} % of frames, longest gap {:.0f} ms)", name(p), 100.0 * share,
+                                        1e3 * longest * dt_v));
+        }
+      }
+      if (!missing.empty()) {
+        reasons.push_back(fmt::format("markers missing around contact (from {:.0f} ms before contact to its end): {}",
+                                      1e3 * o.coverage_lead_s, join(missing, "; ")));
+      }
+    }
+
+    // Max deformation.
+    int imin = -1;
+    for (int i = std::max(0, first); i <= std::min(last, nf - 1); ++i) {
+      if (std::isfinite(h[i]) && (imin < 0 || h[i] < h[imin])) imin = i;
+    }
+    if (imin >= 0) {
+      double hmin = h[imin], umin = 0.0;
+      const int hw = std::max(1, static_cast<int>(std::lround(o.deformation_fit_half_window_s * fps)));
+      Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
+      Eigen::Vector3d atb = Eigen::Vector3d::Zero();
+      int count = 0;
+      for (int i = std::max(0, imin - hw); i <= std::min(nf - 1, imin + hw); ++i) {
+        if (!std::isfinite(h[i])) continue;
+        const double u = i - imin;
+        const Eigen::Vector3d row(1.0, u, u * u);
+        ata += row * row.transpose();
+        atb += row * h[i];
+        ++count;
+      }
+      if (count >= 5) {
+        const Eigen::Vector3d c = ata.ldlt().solve(atb);
+        if (c(2) > 0.0) {
+          const double u = -c(1) / (2.0 * c(2));
+          if (std::abs(u) <= hw) {
+            umin = u;
+            hmin = c(0) + c(1) * u + c(2) * u * u;
+          }
+        }
+      }
+      res.max_deformation_m = top - hmin;
+      res.max_deformation_time_s = t_video(imin + umin) - offset;
+    }
+
+    // Tilt.
+    {
+      std::vector<Eigen::Vector3d> up(nf, Eigen::Vector3d::Constant(kNaN));
+      std::vector<Eigen::Vector3d> pts(o.base_markers.size());
+      const int i0 = std::max(0, first), i1 = std::min(last, nf - 1);
+      for (int i = i0; i <= i1; ++i) {
+        for (std::size_t k = 0; k < o.base_markers.size(); ++k) pts[k] = markers.point(i, o.base_markers[k]);
+        up[i] = base_up_vector(pts);
+      }
+      const int half = std::max(0, o.tilt_smoothing_frames / 2);
+      const int need = half + 1;
+      double worst = kNaN;
+      for (int i = i0; i <= i1; ++i) {
+        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+        int k = 0;
+        for (int j = std::max(i0, i - half); j <= std::min(i1, i + half); ++j) {
+          if (up[j].allFinite()) {
+            sum += up[j];
+            ++k;
+          }
+        }
+        if (k < std::min(need, i1 - i0 + 1)) continue;
+        const double a = angle_from_vertical_deg(sum);
+        if (!(a <= worst)) worst = a;
+      }
+      res.tilt_deg = worst;
+      if (std::isfinite(worst) && worst > o.max_tilt_deg) {
+        reasons.push_back(fmt::format("tilt {:.1f} deg exceeds the {:.1f} deg limit", worst, o.max_tilt_deg));
+      }
+    }
+  }
+
+  if (force) {
+    const Eigen::VectorXd& t = force->plate.t_s;
+    const Eigen::VectorXd fz = force->plate.f_n.col(2);
+    const Eigen::Index n = t.size();
+    const double t_first = t_video(0);
+
+    // Series over the contact.
+    {
+      const double a = force->contact_time_s - o.series_lead_s, b = force->end_time_s;
+      std::vector<Eigen::Index> rows;
+      for (Eigen::Index k = 0; k < n; ++k) {
+        if (t[k] >= a && t[k] <= b) rows.push_back(k);
+      }
+      const auto m = static_cast<Eigen::Index>(rows.size());
+      Series& s = res.series;
+      s.t_s.resize(m);
+      s.fz_n.resize(m);
+      s.impactor_z_m.resize(m);
+      s.deformation_m.resize(m);
+      s.surface_z_m.resize(m);
+      for (Eigen::Index r = 0; r < m; ++r) {
+        const Eigen::Index k = rows[r];
+        s.t_s[r] = t[k];
+        s.fz_n[r] = fz[k];
+        s.impactor_z_m[r] = interpolate_uniform(h, t_first, dt_v, t[k] + offset);
+        s.deformation_m[r] = top - s.impactor_z_m[r];
+        s.surface_z_m[r] = interpolate_uniform(surf, t_first, dt_v, t[k] + offset);
+      }
+    }
+
+    // Second synchronisation estimate: face heights against free fall plus
+    // the plate force's double integral over the impactor mass.
+    if (ff.ok && std::isfinite(res.video_offset_s) && std::isfinite(end_v)) {
+      const Eigen::Index k0 = std::max<Eigen::Index>(0, force->contact_index - 5);
+      Eigen::VectorXd disp = Eigen::VectorXd::Zero(n);
+      double vel = 0.0;
+      for (Eigen::Index k = k0 + 1; k < n; ++k) {
+        const double step = t[k] - t[k - 1];
+        const double v_new = vel + 0.5 * (fz[k - 1] + fz[k]) / o.impactor_mass_kg * step;
+        disp[k] = disp[k - 1] + 0.5 * (vel + v_new) * step;
+        vel = v_new;
+      }
+      const double dt_f = (t[n - 1] - t[0]) / static_cast<double>(n - 1);
+      std::vector<double> tv, dz;
+      const double search = 0.005;
+      for (int i = std::max(0, static_cast<int>(std::ceil(frame_at(start_v)))); i < nf && t_video(i) <= end_v; ++i) {
+        const double tf = t_video(i) - res.video_offset_s;
+        if (!std::isfinite(h[i]) || tf - search < t[0] || tf + search > t[n - 1]) continue;
+        tv.push_back(t_video(i));
+        dz.push_back(h[i] - ff.height_at(t_video(i), g));
+      }
+      if (tv.size() >= 10) {
+        auto cost = [&](double delta) {
+          double sum = 0.0;
+          for (std::size_t i = 0; i < tv.size(); ++i) {
+            const double r = dz[i] - interpolate_uniform(disp, t[0], dt_f, tv[i] - delta);
+            sum += r * r;
+          }
+          return sum;
+        };
+        const double step = 1e-5;
+        const int steps = static_cast<int>(std::lround(search / step));
+        double best = std::numeric_limits<double>::infinity();
+        int best_k = 0;
+        std::vector<double> c(2 * steps + 1);
+        for (int k = -steps; k <= steps; ++k) {
+          c[k + steps] = cost(res.video_offset_s + k * step);
+          if (c[k + steps] < best) best = c[k + steps], best_k = k;
+        }
+        double refine = 0.0;
+        if (best_k > -steps && best_k < steps) {
+          const double cm = c[best_k + steps - 1], c0 = c[best_k + steps], cp = c[best_k + steps + 1];
+          const double curv = cm - 2.0 * c0 + cp;
+          if (curv > 0.0) refine = 0.5 * (cm - cp) / curv;
+        }
+        res.video_offset_trajectory_s = res.video_offset_s + (best_k + refine) * step;
+      }
+    }
+
+    // Impulse check to maximum deformation.
+    if (std::isfinite(res.max_deformation_time_s) && std::isfinite(res.impact_velocity_m_s) &&
+        res.max_deformation_time_s > force->contact_time_s) {
+      const double impulse = integrate(t, fz, force->contact_time_s, res.max_deformation_time_s) -
+                             o.impactor_mass_kg * g * (res.max_deformation_time_s - force->contact_time_s);
+      res.impulse_ratio = impulse / (o.impactor_mass_kg * res.impact_velocity_m_s);
+    }
+  }
+
+  res.accepted = reasons.empty();
+  res.reject_reason = join(reasons, "; ");
+  return res;
+}
+
+}  // namespace
+
+double FreeFallFit::height_at(double t_s, double gravity_m_s2) const {
+  const double tau = t_s - t_ref_s;
+  return z_ref_m + v_ref_m_s * tau - 0.5 * gravity_m_s2 * tau * tau;
+}
+
+FreeFallFit fit_free_fall(const Eigen::VectorXd& t_s, const Eigen::VectorXd& z_m, double gravity_m_s2,
+                          double contact_height_m, double t_ref_s) {
+  FreeFallFit out;
+  out.t_ref_s = t_ref_s;
+  const std::size_t n = static_cast<std::size_t>(t_s.size());
+  std::vector<double> tau(n), y(n);
+  std::vector<char> use(n, 1);
+  for (std::size_t i = 0; i < n; ++i) {
+    tau[i] = t_s[static_cast<Eigen::Index>(i)] - t_ref_s;
+    y[i] = z_m[static_cast<Eigen::Index>(i)] + 0.5 * gravity_m_s2 * tau[i] * tau[i];
+  }
+  std::optional<Fit2> fit = line_fit(tau, y, use);
+  if (!fit) return out;
+  // One pass dropping residuals beyond 4 robust SDs (misdigitised frames).
+  {
+    std::vector<double> r(n), absr;
+    for (std::size_t i = 0; i < n; ++i) {
+      r[i] = y[i] - fit->z - fit->v * tau[i];
+      absr.push_back(std::abs(r[i]));
+    }
+    std::nth_element(absr.begin(), absr.begin() + static_cast<std::ptrdiff_t>(n / 2), absr.end());
+    const double sigma = std::max(1.4826 * absr[n / 2], 1e-6);
+    bool dropped = false;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (std::abs(r[i]) > 4.0 * sigma) use[i] = 0, dropped = true;
+    }
+    if (dropped) {
+      std::optional<Fit2> refit = line_fit(tau, y, use);
+      if (!refit) return out;
+      fit = refit;
+    }
+  }
+  const int used = static_cast<int>(std::count(use.begin(), use.end(), 1));
+  out.n_frames = used;
+  out.z_ref_m = fit->z;
+  out.v_ref_m_s = fit->v;
+  const double s2 = fit->rss / (used - 2);
+  out.rms_m = std::sqrt(fit->rss / used);
+  out.covariance = s2 * fit->xtx_inv;
+
+  // Arrival at the contact height: the descending root of
+  // z0 + v0 tau - g tau^2 / 2 = H, tau = 2 (H - z0) / (v0 - s), s = sqrt(v0^2 - 2 g (H - z0)).
+  const double z0 = fit->z, v0 = fit->v;
+  const double disc = v0 * v0 - 2.0 * gravity_m_s2 * (contact_height_m - z0);
+  if (!(disc > 0.0)) return out;
+  const double s = std::sqrt(disc);
+  if (!(v0 - s < 0.0)) return out;
+  out.contact_time_s = t_ref_s + 2.0 * (contact_height_m - z0) / (v0 - s);
+  out.contact_speed_m_s = s;
+  const Eigen::Vector2d grad(gravity_m_s2 / s, v0 / s);
+  const double var = grad.dot(out.covariance * grad);
+  out.contact_speed_ci_m_s = student_t_quantile(0.975, used - 2) * std::sqrt(std::max(var, 0.0));
+  out.ok = true;
+  return out;
+}
+
+double student_t_quantile(double p, double dof) {
+  if (!(p > 0.0 && p < 1.0) || !(dof > 0.0)) return kNaN;
+  if (p == 0.5) return 0.0;
+  if (p < 0.5) return -student_t_quantile(1.0 - p, dof);
+  double lo = 0.0, hi = 1.0;
+  while (student_t_cdf(hi, dof) < p && hi < 1e12) hi *= 2.0;
+  for (int it = 0; it < 200 && hi - lo > 1e-13 * hi; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    (student_t_cdf(mid, dof) < p ? lo : hi) = mid;
+  }
+  return 0.5 * (lo + hi);
+}
+
+double base_tilt_deg(const std::vector<Eigen::Vector3d>& base_points_m) {
+  return angle_from_vertical_deg(base_up_vector(base_points_m));
+}
+
+TrialResult analyse(const forceplate::ForceTrial& force, const reconstruction::Trajectories& markers,
+                    const TrialOptions& options) {
+  return analyse_impl(&force, std::string(), markers, options);
+}
+
+TrialResult analyse(const forceplate::Resultants& raw_force, const forceplate::ProcessOptions& force_options,
+                    const reconstruction::Trajectories& markers, const TrialOptions& options) {
+  std::optional<forceplate::ForceTrial> force;
+  std::string error;
+  try {
+    force = forceplate::process(raw_force, force_options);
+  } catch (const Error& e) {
+    error = e.what();
+  }
+  return force ? analyse_impl(&*force, std::string(), markers, options) : analyse_impl(nullptr, error, markers, options);
+}
+
+TrialResult analyse_without_force(const reconstruction::Trajectories& markers, const TrialOptions& options,
+                                  const std::string& force_error) {
+  return analyse_impl(nullptr, force_error.empty() ? std::string("force record: missing") : force_error, markers,
+                      options);
+}
+
+std::string TrialResult::report() const {
+  std::string out = fmt::format("trial {}: {}{}\n", id, accepted ? "accepted" : "rejected: ", reject_reason);
+  out += fmt::format("  impact velocity {:.3f} +- {:.3f} m/s (95 %, {} free-fall frames, rms {:.2f} mm)\n",
+                     impact_velocity_m_s, impact_velocity_ci_m_s, freefall_frames, 1e3 * freefall_rms_m);
+  out += fmt::format("  max deformation {:.1f} mm; tilt {:.1f} deg\n", 1e3 * max_deformation_m, tilt_deg);
+  out += fmt::format("  peak force {:.0f} N, {:.1f} ms after contact; contact at {:+.2f} ms (force clock)\n",
+                     peak_force_n, 1e3 * time_to_peak_s, 1e3 * contact_time_s);
+  out += fmt::format("  video offset {:+.2f} ms (contact instant), {:+.2f} ms (trajectory); impulse ratio {:.3f}\n",
+                     1e3 * video_offset_s, 1e3 * video_offset_trajectory_s, impulse_ratio);
+  return out;
+}
+
+}  // namespace dropfit::trial

@@ -1,0 +1,412 @@
+// Trial analysis against a synthetic drop with known truth: a 24 kg impactor
+// in free fall lands on a Hunt-Crossley spring-damper mat (massless, so the
+// plate reads the contact force), integrated finely; the plate samples the
+// force through eight noisy channels, the cameras see noisy markers at
+// 1000 Hz on a clock 3 ms off the declared one.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "core/error.h"
+#include "forceplate/forceplate.h"
+#include "trial/trial.h"
+
+namespace fp = dropfit::forceplate;
+namespace tr = dropfit::trial;
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+struct WorldOptions {
+  double impact_speed_m_s = 5.25;
+  double mass_kg = 24.0;
+  double gravity_m_s2 = 9.81;
+  // Mat: F = max(0, k x^1.5 (1 + alpha xdot)), x the penetration.
+  double k_n_m15 = 2.8e5;
+  double alpha_s_m = 0.3;
+  double mat_top_z_m = 0.205;
+  double base_marker_height_m = 0.03;
+  int n_base_markers = 2;
+  double tilt_deg = 0.0;               // about the lab y axis
+  double true_offset_s = 0.003;        // video clock minus force clock
+  double marker_noise_m = 0.5e-3;
+  double channel_noise_n = 1.0;        // Fz (four channels) has 2 N
+  double fs_hz = 1000.0, fps_hz = 1000.0;
+  int force_samples = 1500, pretrigger = 150;
+  int frames = 1000, trigger_frame = 500;
+  double phase_s = 0.37e-3;            // force sampling off the contact instant
+  unsigned seed = 11;
+};
+
+struct World {
+  WorldOptions o;
+  // Truth on a fine grid from contact (tau = 0).
+  double h_s = 5e-6;
+  std::vector<double> pen_m, force_n;
+  double peak_force_n = 0.0, max_penetration_m = 0.0;
+  double tau_trigger_s = 0.0;  // the trigger sample's time after contact
+  // Measurements.
+  fp::Resultants raw;
+  dropfit::reconstruction::Trajectories markers;
+  std::vector<std::string> names;
+
+  double contact_force_clock_s() const { return -tau_trigger_s; }
+  double penetration(double tau) const {  // truth, any time after contact (free fall before)
+    if (tau <= 0.0) return -(o.impact_speed_m_s * (-tau) - 0.5 * o.gravity_m_s2 * tau * tau);
+    const double u = tau / h_s;
+    const std::size_t i = std::min(static_cast<std::size_t>(u), pen_m.size() - 2);
+    const double w = u - static_cast<double>(i);
+    return (1.0 - w) * pen_m[i] + w * pen_m[i + 1];
+  }
+  double force(double tau) const {
+    if (tau <= 0.0) return 0.0;
+    const double u = tau / h_s;
+    const std::size_t i = std::min(static_cast<std::size_t>(u), force_n.size() - 2);
+    const double w = u - static_cast<double>(i);
+    return (1.0 - w) * force_n[i] + w * force_n[i + 1];
+  }
+  double face_z(double tau) const { return o.mat_top_z_m - penetration(tau); }
+  double surface_z(double tau) const { return o.mat_top_z_m - 0.15 * std::max(0.0, penetration(tau)); }
+  // Video frame i sees the world at this time after contact.
+  double tau_of_frame(int i) const {
+    return (i - o.trigger_frame) / o.fps_hz - o.true_offset_s + tau_trigger_s;
+  }
+};
+
+double mat_force(const WorldOptions& o, double x, double xdot) {
+  if (x <= 0.0) return 0.0;
+  return std::max(0.0, o.k_n_m15 * std::pow(x, 1.5) * (1.0 + o.alpha_s_m * xdot));
+}
+
+World make_world(const WorldOptions& o) {
+  World w;
+  w.o = o;
+  // RK4 of m xddot = m g - F(x, xdot) from contact to the end of the force record.
+  const double tau_end = (o.force_samples - o.pretrigger) / o.fs_hz + 0.05;
+  const auto steps = static_cast<std::size_t>(tau_end / w.h_s) + 2;
+  w.pen_m.resize(steps);
+  w.force_n.resize(steps);
+  double x = 0.0, v = o.impact_speed_m_s;
+  auto acc = [&](double xx, double vv) { return o.gravity_m_s2 - mat_force(o, xx, vv) / o.mass_kg; };
+  for (std::size_t i = 0; i < steps; ++i) {
+    w.pen_m[i] = x;
+    w.force_n[i] = mat_force(o, x, v);
+    w.peak_force_n = std::max(w.peak_force_n, w.force_n[i]);
+    w.max_penetration_m = std::max(w.max_penetration_m, x);
+    const double h = w.h_s;
+    const double k1x = v, k1v = acc(x, v);
+    const double k2x = v + 0.5 * h * k1v, k2v = acc(x + 0.5 * h * k1x, v + 0.5 * h * k1v);
+    const double k3x = v + 0.5 * h * k2v, k3v = acc(x + 0.5 * h * k2x, v + 0.5 * h * k2v);
+    const double k4x = v + h * k3v, k4v = acc(x + h * k3x, v + h * k3v);
+    x += h / 6.0 * (k1x + 2 * k2x + 2 * k3x + k4x);
+    v += h / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v);
+  }
+  std::mt19937 rng(o.seed);
+  std::normal_distribution<double> unit(0.0, 1.0);
+
+  // Force plate: samples at tau = phase + k / fs; the trigger is the first at 25 N.
+  int k_trig = 0;
+  while (w.force(o.phase_s + k_trig / o.fs_hz) < 25.0) ++k_trig;
+  w.tau_trigger_s = o.phase_s + k_trig / o.fs_hz;
+  const fp::PlateGeometry plate;
+  Eigen::VectorXd t(o.force_samples);
+  Eigen::MatrixXd ch(o.force_samples, 8);
+  const double offsets[8] = {0.4, -0.2, 0.1, 0.3, 2.0, -1.5, 1.0, 0.5};
+  for (int i = 0; i < o.force_samples; ++i) {
+    const int k = k_trig - o.pretrigger + i;
+    t[i] = (k - k_trig) / o.fs_hz;
+    const double fz = w.force(o.phase_s + k / o.fs_hz);
+    const double fx = 0.01 * fz, fy = 0.0, ax = 0.01, ay = -0.02;
+    const double my = fx * plate.az0_m - ax * fz, mx = ay * fz - fy * plate.az0_m;
+    const double a = plate.a_m, b = plate.b_m;
+    const double c[8] = {fx / 2, fx / 2, fy / 2, fy / 2, (fz + mx / b - my / a) / 4, (fz + mx / b + my / a) / 4,
+                         (fz - mx / b + my / a) / 4, (fz - mx / b - my / a) / 4};
+    for (int j = 0; j < 8; ++j) ch(i, j) = c[j] + offsets[j] + o.channel_noise_n * unit(rng);
+  }
+  w.raw = fp::from_eight_channels(t, ch, plate);
+
+  // Markers: base markers around the face centre, tilted about y; four
+  // surface markers following the mat top. Not digitised before release.
+  const double th = o.tilt_deg * kPi / 180.0;
+  const Eigen::Matrix3d rot = Eigen::AngleAxisd(th, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  std::vector<Eigen::Vector3d> local;
+  if (o.n_base_markers == 2) {
+    local = {{0.1, 0.0, o.base_marker_height_m}, {-0.1, 0.0, o.base_marker_height_m}};
+    w.names = {"imp_base_front", "imp_base_back"};
+  } else {
+    for (int k = 0; k < o.n_base_markers; ++k) {
+      const double phi = 2.0 * kPi * k / o.n_base_markers;
+      local.emplace_back(0.1 * std::cos(phi), 0.1 * std::sin(phi), o.base_marker_height_m);
+      w.names.push_back("imp_base_" + std::to_string(k + 1));
+    }
+  }
+  const std::vector<Eigen::Vector2d> surface_xy{{0.0, 0.25}, {0.0, -0.25}, {0.4, 0.0}, {-0.4, 0.0}};
+  for (const char* n : {"mat_n", "mat_s", "mat_e", "mat_w"}) w.names.push_back(n);
+  const int n_points = o.n_base_markers + 4;
+  w.markers.lab_m.setConstant(o.frames, 3 * n_points, std::numeric_limits<double>::quiet_NaN());
+  w.markers.residual_px.setConstant(o.frames, n_points, 0.3);
+  const Eigen::Vector3d centre_xy(0.01, -0.02, 0.0);
+  const double release = -o.impact_speed_m_s / o.gravity_m_s2;
+  for (int i = 0; i < o.frames; ++i) {
+    const double tau = w.tau_of_frame(i);
+    if (tau < release) continue;
+    const Eigen::Vector3d face = centre_xy + Eigen::Vector3d(0.0, 0.0, w.face_z(tau));
+    for (int p = 0; p < o.n_base_markers; ++p) {
+      const Eigen::Vector3d q = face + rot * local[p];
+      for (int d = 0; d < 3; ++d) w.markers.lab_m(i, 3 * p + d) = q[d] + o.marker_noise_m * unit(rng);
+    }
+    for (int s = 0; s < 4; ++s) {
+      const int p = o.n_base_markers + s;
+      const Eigen::Vector3d q(surface_xy[s].x(), surface_xy[s].y(), w.surface_z(tau));
+      for (int d = 0; d < 3; ++d) w.markers.lab_m(i, 3 * p + d) = q[d] + o.marker_noise_m * unit(rng);
+    }
+  }
+  return w;
+}
+
+fp::ProcessOptions force_options(const World& w) {
+  fp::ProcessOptions po;
+  po.pretrigger_samples = w.o.pretrigger;
+  po.sample_rate_hz = w.o.fs_hz;
+  return po;
+}
+
+tr::TrialOptions trial_options(const World& w) {
+  tr::TrialOptions t;
+  t.id = "synthetic";
+  t.impactor_mass_kg = w.o.mass_kg;
+  t.gravity_m_s2 = w.o.gravity_m_s2;
+  t.frame_rate_hz = w.o.fps_hz;
+  t.trigger_frame = w.o.trigger_frame;
+  for (int p = 0; p < w.o.n_base_markers; ++p) t.base_markers.push_back(p);
+  for (int s = 0; s < 4; ++s) t.surface_markers.push_back(w.o.n_base_markers + s);
+  t.point_names = w.names;
+  t.base_marker_height_m = w.o.base_marker_height_m;
+  t.mat_top_z_m = w.o.mat_top_z_m;
+  return t;
+}
+
+bool contains(const std::string& s, const std::string& part) { return s.find(part) != std::string::npos; }
+
+}  // namespace
+
+TEST(Trial, MeasuresVelocityDeformationForceAndClockOffset) {
+  for (double speed : {4.3, 5.25, 6.5}) {
+    SCOPED_TRACE("impact speed " + std::to_string(speed));
+    WorldOptions wo;
+    wo.impact_speed_m_s = speed;
+    wo.seed = static_cast<unsigned>(speed * 100);
+    const World w = make_world(wo);
+    const fp::ForceTrial force = fp::process(w.raw, force_options(w));
+    const tr::TrialResult r = tr::analyse(force, w.markers, trial_options(w));
+
+    EXPECT_TRUE(r.accepted) << r.reject_reason;
+    EXPECT_NEAR(r.impact_velocity_m_s, speed, 0.02);
+    EXPECT_GT(r.impact_velocity_ci_m_s, 0.0005);
+    EXPECT_LT(r.impact_velocity_ci_m_s, 0.02);
+    EXPECT_NEAR(r.max_deformation_m, w.max_penetration_m, 1e-3);
+    EXPECT_NEAR(r.peak_force_n, w.peak_force_n, 0.005 * w.peak_force_n);
+    EXPECT_NEAR(r.video_offset_s, wo.true_offset_s, 0.2e-3);
+    EXPECT_NEAR(r.video_offset_trajectory_s, wo.true_offset_s, 0.3e-3);
+    // Contact from the force itself: before the 25 N crossing, within 1 ms of truth.
+    EXPECT_LT(r.contact_time_s, force.plate.t_s[force.trigger_index]);
+    EXPECT_NEAR(r.contact_time_s, w.contact_force_clock_s(), 1e-3);
+    EXPECT_LT(r.tilt_deg, 1.0);
+    EXPECT_NEAR(r.impulse_ratio, 1.0, 0.03);
+
+    // The series: the impactor placed on the force clock with the found offset.
+    const tr::Series& s = r.series;
+    ASSERT_GT(s.t_s.size(), 50);
+    EXPECT_LT(s.t_s[0], r.contact_time_s);
+    int compared = 0;
+    for (Eigen::Index k = 0; k < s.t_s.size(); ++k) {
+      const double tau = s.t_s[k] + w.tau_trigger_s;
+      ASSERT_TRUE(std::isfinite(s.impactor_z_m[k])) << "sample " << k;
+      EXPECT_NEAR(s.impactor_z_m[k], w.face_z(tau), 1.5e-3) << "sample " << k;
+      EXPECT_NEAR(s.deformation_m[k], w.penetration(tau), 1.5e-3) << "sample " << k;
+      EXPECT_NEAR(s.surface_z_m[k], w.surface_z(tau), 1.0e-3) << "sample " << k;
+      EXPECT_NEAR(s.fz_n[k], w.force(tau), 10.0) << "sample " << k;
+      ++compared;
+    }
+    EXPECT_GT(compared, 50);
+  }
+}
+
+TEST(Trial, ThreeBaseMarkersGiveThePlaneTilt) {
+  WorldOptions wo;
+  wo.n_base_markers = 3;
+  wo.tilt_deg = 2.6;
+  const World w = make_world(wo);
+  const tr::TrialResult r = tr::analyse(fp::process(w.raw, force_options(w)), w.markers, trial_options(w));
+  EXPECT_TRUE(r.accepted) << r.reject_reason;
+  EXPECT_NEAR(r.tilt_deg, 2.6, 0.6);
+  EXPECT_NEAR(r.impact_velocity_m_s, wo.impact_speed_m_s, 0.02);
+}
+
+TEST(Trial, TiltedImpactorIsRejected) {
+  WorldOptions wo;
+  wo.tilt_deg = 10.0;
+  const World w = make_world(wo);
+  const tr::TrialResult r = tr::analyse(fp::process(w.raw, force_options(w)), w.markers, trial_options(w));
+  EXPECT_FALSE(r.accepted);
+  EXPECT_TRUE(contains(r.reject_reason, "tilt")) << r.reject_reason;
+  EXPECT_NEAR(r.tilt_deg, 10.0, 1.0);
+  // Still measured.
+  EXPECT_NEAR(r.impact_velocity_m_s, wo.impact_speed_m_s, 0.02);
+}
+
+TEST(Trial, MissingMarkersAroundContactAreRejectedByName) {
+  const World w = make_world(WorldOptions{});
+  dropfit::reconstruction::Trajectories markers = w.markers;
+  for (int i = 0; i < w.o.frames; ++i) {
+    const double tau = w.tau_of_frame(i);
+    if (tau > -0.005 && tau < 0.030) markers.lab_m.block(i, 3, 1, 3).setConstant(std::nan(""));  // imp_base_back
+  }
+  const tr::TrialResult r = tr::analyse(fp::process(w.raw, force_options(w)), markers, trial_options(w));
+  EXPECT_FALSE(r.accepted);
+  EXPECT_TRUE(contains(r.reject_reason, "imp_base_back")) << r.reject_reason;
+  EXPECT_FALSE(contains(r.reject_reason, "imp_base_front")) << r.reject_reason;
+  EXPECT_NEAR(r.peak_force_n, w.peak_force_n, 0.005 * w.peak_force_n);
+}
+
+// A short gap is tolerated, and the series shows it as NaN, never filled.
+TEST(Trial, ShortGapStaysAGapInTheSeries) {
+  const World w = make_world(WorldOptions{});
+  dropfit::reconstruction::Trajectories markers = w.markers;
+  std::set<int> gap;
+  for (int i = 0; i < w.o.frames; ++i) {
+    const double tau = w.tau_of_frame(i);
+    if (tau > 0.020 && tau < 0.023) {
+      markers.lab_m(i, 2) = std::nan("");
+      gap.insert(i);
+    }
+  }
+  ASSERT_EQ(gap.size(), 3u);
+  const tr::TrialResult r = tr::analyse(fp::process(w.raw, force_options(w)), markers, trial_options(w));
+  EXPECT_TRUE(r.accepted) << r.reject_reason;
+  int nan_rows = 0;
+  for (Eigen::Index k = 0; k < r.series.t_s.size(); ++k) {
+    const double u = (r.series.t_s[k] + r.video_offset_s) * w.o.fps_hz + w.o.trigger_frame;
+    const int i = static_cast<int>(std::floor(u));
+    const bool touches_gap = gap.count(i) > 0 || (u > i && gap.count(i + 1) > 0);
+    EXPECT_EQ(std::isnan(r.series.impactor_z_m[k]), touches_gap) << "sample " << k;
+    nan_rows += std::isnan(r.series.impactor_z_m[k]);
+  }
+  EXPECT_GE(nan_rows, 3);
+}
+
+// The plate's Fz cable unplugged: no trigger. Rejected with the forceplate's
+// reason, video measurements still there.
+TEST(Trial, NoTriggerIsRejectedWithVideoStillMeasured) {
+  const World w = make_world(WorldOptions{});
+  fp::Resultants raw = w.raw;
+  std::mt19937 rng(5);
+  std::normal_distribution<double> noise(0.0, 1.0);
+  Eigen::MatrixXd ch = raw.channels_n;
+  for (int i = 0; i < ch.rows(); ++i) {
+    for (int c = 4; c < 8; ++c) ch(i, c) = noise(rng);
+  }
+  raw = fp::from_eight_channels(raw.t_s, ch, fp::PlateGeometry{});
+  const tr::TrialResult r = tr::analyse(raw, force_options(w), w.markers, trial_options(w));
+  EXPECT_FALSE(r.accepted);
+  EXPECT_TRUE(contains(r.reject_reason, "no trigger")) << r.reject_reason;
+  EXPECT_NEAR(r.impact_velocity_m_s, w.o.impact_speed_m_s, 0.02);
+  EXPECT_NEAR(r.max_deformation_m, w.max_penetration_m, 1e-3);
+  EXPECT_TRUE(std::isnan(r.peak_force_n));
+}
+
+TEST(Trial, WithoutForceTheVideoIsStillMeasured) {
+  const World w = make_world(WorldOptions{});
+  const tr::TrialResult r = tr::analyse_without_force(w.markers, trial_options(w), "force record: 7 channels");
+  EXPECT_FALSE(r.accepted);
+  EXPECT_EQ(r.reject_reason, "force record: 7 channels");
+  EXPECT_NEAR(r.impact_velocity_m_s, w.o.impact_speed_m_s, 0.02);
+  EXPECT_NEAR(r.max_deformation_m, w.max_penetration_m, 1e-3);
+  EXPECT_LT(r.tilt_deg, 1.0);
+  EXPECT_EQ(r.series.t_s.size(), 0);
+}
+
+TEST(Trial, SaturatedChannelIsRejected) {
+  const World w = make_world(WorldOptions{});
+  Eigen::MatrixXd ch = w.raw.channels_n;
+  ch.col(5) = ch.col(5).cwiseMin(0.7 * ch.col(5).maxCoeff());
+  const fp::Resultants raw = fp::from_eight_channels(w.raw.t_s, ch, fp::PlateGeometry{});
+  const tr::TrialResult r = tr::analyse(raw, force_options(w), w.markers, trial_options(w));
+  EXPECT_FALSE(r.accepted);
+  EXPECT_TRUE(contains(r.reject_reason, "saturated") && contains(r.reject_reason, "Fz2")) << r.reject_reason;
+  EXPECT_NEAR(r.impact_velocity_m_s, w.o.impact_speed_m_s, 0.02);
+}
+
+// A wrong trigger_frame: the clocks disagree by far more than a camera can
+// drift; rejected, with the offset still measured.
+TEST(Trial, ClocksFarApartAreRejected) {
+  WorldOptions wo;
+  wo.true_offset_s = 0.080;
+  const World w = make_world(wo);
+  const tr::TrialResult r = tr::analyse(fp::process(w.raw, force_options(w)), w.markers, trial_options(w));
+  EXPECT_FALSE(r.accepted);
+  EXPECT_TRUE(contains(r.reject_reason, "trigger_frame")) << r.reject_reason;
+  EXPECT_NEAR(r.video_offset_s, 0.080, 0.2e-3);
+}
+
+TEST(Trial, BadOptionsThrow) {
+  const World w = make_world(WorldOptions{});
+  const fp::ForceTrial force = fp::process(w.raw, force_options(w));
+  tr::TrialOptions o = trial_options(w);
+  o.base_markers = {0, 9};
+  EXPECT_THROW(tr::analyse(force, w.markers, o), dropfit::Error);
+  o.base_markers.clear();
+  EXPECT_THROW(tr::analyse(force, w.markers, o), dropfit::Error);
+}
+
+// Student t quantiles against the tabulated values.
+TEST(Trial, StudentTQuantiles) {
+  EXPECT_NEAR(tr::student_t_quantile(0.975, 1), 12.706205, 1e-5);
+  EXPECT_NEAR(tr::student_t_quantile(0.975, 10), 2.228139, 1e-5);
+  EXPECT_NEAR(tr::student_t_quantile(0.95, 5), 2.015048, 1e-5);
+  EXPECT_NEAR(tr::student_t_quantile(0.975, 1e6), 1.959966, 1e-5);
+  EXPECT_NEAR(tr::student_t_quantile(0.025, 10), -2.228139, 1e-5);
+}
+
+// The 95 % interval of the impact speed covers the truth about 95 % of the time.
+TEST(Trial, ImpactSpeedIntervalCoversTheTruth) {
+  std::mt19937 rng(3);
+  std::normal_distribution<double> noise(0.0, 0.5e-3);
+  const double g = 9.81, v = 5.0, top = 0.2;
+  int covered = 0;
+  const int runs = 400;
+  for (int run = 0; run < runs; ++run) {
+    const double phase = (run % 10) * 1e-4;
+    Eigen::VectorXd t(40), z(40);
+    for (int i = 0; i < 40; ++i) {
+      t[i] = -0.040 + i * 1e-3 + phase;  // contact at t = 0
+      z[i] = top - v * t[i] - 0.5 * g * t[i] * t[i] + noise(rng);
+    }
+    const tr::FreeFallFit f = tr::fit_free_fall(t, z, g, top, 0.0);
+    ASSERT_TRUE(f.ok);
+    covered += std::abs(f.contact_speed_m_s - v) <= f.contact_speed_ci_m_s;
+    EXPECT_NEAR(f.contact_time_s, 0.0, 0.5e-3);
+  }
+  EXPECT_GT(covered, 0.90 * runs);
+  EXPECT_LT(covered, 0.99 * runs);
+}
+
+TEST(Trial, BaseTiltFromTwoOrMoreMarkers) {
+  const double a = 7.0 * kPi / 180.0;
+  EXPECT_NEAR(tr::base_tilt_deg({{0, 0, 0}, {0.2 * std::cos(a), 0.1, 0.2 * std::sin(a)}}),
+              std::asin(0.2 * std::sin(a) / std::hypot(0.2 * std::cos(a), 0.1, 0.2 * std::sin(a))) * 180.0 / kPi,
+              1e-9);
+  const Eigen::Matrix3d rot = Eigen::AngleAxisd(a, Eigen::Vector3d(1, 1, 0).normalized()).toRotationMatrix();
+  EXPECT_NEAR(tr::base_tilt_deg({rot * Eigen::Vector3d(0.1, 0, 0), rot * Eigen::Vector3d(0, 0.1, 0),
+                                 rot * Eigen::Vector3d(-0.1, -0.05, 0)}),
+              7.0, 1e-9);
+  EXPECT_TRUE(std::isnan(tr::base_tilt_deg({{0, 0, 0}, {std::nan(""), 0, 0}})));
+}

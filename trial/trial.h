@@ -1,0 +1,188 @@
+#pragma once
+// One drop trial from plain values: the processed force record, the
+// reconstructed marker trajectories and the session's constants in; impact
+// velocity with its 95 % interval, the video-force clock offset, maximum
+// deformation, tilt, acceptance and the contact series out (the fields of
+// OUT/trials/TRIAL/trial.json and series.csv, shared/spec/results-format.md).
+//
+// Clocks. Force clock: t = 0 at the plate's trigger sample (forceplate.h).
+// Video clock: frame i at (i - trigger_frame) / frame_rate, the nominal
+// relation. The actual relation is estimated from the data:
+//   video_offset_s = (an instant's video-clock time) - (its force-clock time),
+// and every video-derived series is placed on the force clock with it.
+//
+// Methods.
+// - Contact face height: the mean height of the impactor's base markers
+//   minus base_marker_height_m, only in frames where all base markers are
+//   present (a subset's mean would jump when the impactor is tilted).
+// - Impact velocity: least squares of the free-fall path
+//   z(t) = z0 + v0 (t - t_ref) - g (t - t_ref)^2 / 2 (g known, two unknowns)
+//   over the face heights of the frames in freefall_window_s before the
+//   face reaches the mat top (frames within freefall_clearance_m of it left
+//   out; one pass dropping residuals beyond 4 robust SDs). The contact
+//   instant is where the fitted path reaches mat_top_z_m (sub-frame); the
+//   downward speed there is s = sqrt(v0^2 - 2 g (mat_top - z0)). Its 95 %
+//   interval: residual variance times (X'X)^-1 propagated through s by the
+//   delta method (ds/dz0 = g/s, ds/dv0 = v0/s), Student t with n - 2
+//   degrees of freedom.
+// - Synchronisation (primary): the contact instant seen by both clocks, the
+//   free-fall fit's arrival at the mat top (video) against the plate's
+//   contact onset (forceplate::ForceTrial::contact_time_s). Its precision is
+//   the fit's (about 0.05 ms at 0.5 mm marker noise); its accuracy rests on
+//   mat_top_z_m (1 mm there is 0.2 ms at 5 m/s) and on the plate's onset
+//   being the instant the face touches the mat. With a massless mat it is
+//   (0.02 ms in tests); when the mat's top layer has mass the plate force
+//   starts as t^2..t^3 and stays inside the noise longer, so the onset and
+//   with it the offset read late (about 0.1-0.6 ms for 0.5-6 kg layers at
+//   2 N plate noise in our simulations); a foam's wave transmission delay
+//   would likewise be read as clock offset. Without a video contact (free
+//   fall not seen) the nominal relation (offset 0) places the series and
+//   video_offset_s is NaN; the trial is then rejected anyway.
+//   Second estimate, reported beside it (video_offset_trajectory_s): the
+//   face heights during contact against the free-fall path plus the plate
+//   force's double integral divided by the impactor mass, shifted by the
+//   offset that fits best (least squares, 0.01 ms grid then parabola). It does
+//   not use mat_top_z_m or the onset, but the plate reads the mat's force,
+//   which differs from the impactor's by the mat's accelerated mass, so it is
+//   a consistency check, not the reported value.
+// - Max deformation: mat_top_z_m minus the lowest face height during contact,
+//   from a quadratic fitted to the frames within
+//   deformation_fit_half_window_s of the lowest one.
+// - Tilt: per frame, with two base markers the base line's angle from
+//   horizontal (the tilt about the line itself cannot be seen); with three or
+//   more the angle of the base plane's normal (least squares plane, SVD) from
+//   vertical. The per-frame sine (two markers) or normal (three or more) is
+//   averaged over tilt_smoothing_frames before taking the angle, so that
+//   marker noise does not inflate the maximum; tilt_deg is the largest over
+//   the contact.
+// - Marker coverage: each base marker must be present in min_marker_coverage
+//   of the frames from coverage_lead_s before contact to the end of contact,
+//   with no gap longer than max_marker_gap_s. Surface markers are optional
+//   (the impactor may hide them); their mean is NaN where any is missing.
+// - Series: every force sample from series_lead_s before contact to the end
+//   of contact; video values linearly interpolated between two present
+//   neighbouring frames at the sample's video-clock time, NaN otherwise.
+// - Impulse check: the plate impulse above the impactor's weight from contact
+//   to maximum deformation (where impactor and mat are at rest) over the
+//   impactor's momentum at contact; 1 when force scale, mass and video agree.
+//
+// Rejections (accepted = false, reason given, everything measured still
+// reported): a bad force record (forceplate's Error text forwarded), the
+// face never seen reaching the mat, too few free-fall frames, base markers
+// missing around contact (named), tilt beyond max_tilt_deg, clocks
+// disagreeing by more than max_video_offset_s. Bad options (an index out of
+// range, no base markers) throw dropfit::Error.
+#include <Eigen/Core>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "forceplate/forceplate.h"
+#include "reconstruction/reconstruction.h"
+
+namespace dropfit::trial {
+
+struct TrialOptions {
+  std::string id;
+  double impactor_mass_kg = 24.0;
+  double gravity_m_s2 = 9.81;
+  double frame_rate_hz = 1000.0;
+  int trigger_frame = 0;                  // 0-based frame recorded at the plate trigger
+  std::vector<int> base_markers;          // indices among the trajectories' points
+  std::vector<int> surface_markers;       // may be empty
+  std::vector<std::string> point_names;   // optional, for messages
+  double base_marker_height_m = 0.0;      // base markers above the contact face
+  double mat_top_z_m = 0.205;             // undeformed mat top, lab frame
+  double max_tilt_deg = 6.0;              // the paper's trials: 2.6 +- 0.87 deg
+  double freefall_window_s = 0.060;
+  double freefall_clearance_m = 0.002;
+  int min_freefall_frames = 10;
+  double coverage_lead_s = 0.010;
+  double min_marker_coverage = 0.90;
+  double max_marker_gap_s = 0.005;
+  double max_video_offset_s = 0.050;
+  double deformation_fit_half_window_s = 0.005;
+  int tilt_smoothing_frames = 5;
+  double series_lead_s = 0.010;
+};
+
+// The free-fall fit of the face height (video clock).
+struct FreeFallFit {
+  bool ok = false;
+  double t_ref_s = 0.0;                   // fit origin
+  double z_ref_m = 0.0, v_ref_m_s = 0.0;  // height and vertical velocity (up positive) at t_ref
+  Eigen::Matrix2d covariance = Eigen::Matrix2d::Zero();  // of (z_ref, v_ref)
+  double rms_m = 0.0;
+  int n_frames = 0;                       // used (after dropping outliers)
+  double contact_time_s = std::numeric_limits<double>::quiet_NaN();  // reaches the contact height
+  double contact_speed_m_s = std::numeric_limits<double>::quiet_NaN();  // downward
+  double contact_speed_ci_m_s = std::numeric_limits<double>::quiet_NaN();  // 95 % half-width
+  double height_at(double t_s, double gravity_m_s2) const;
+};
+
+// Fits z(t) = z0 + v0 (t - t_ref) - g (t - t_ref)^2 / 2 to (t_s, z_m) (all
+// finite), then evaluates the arrival at contact_height_m. ok = false when
+// fewer than 3 points or the path never reaches the height.
+FreeFallFit fit_free_fall(const Eigen::VectorXd& t_s, const Eigen::VectorXd& z_m, double gravity_m_s2,
+                          double contact_height_m, double t_ref_s);
+
+// Quantile of Student's t distribution (p in (0, 1), dof >= 1).
+double student_t_quantile(double p, double dof);
+
+// Tilt from vertical (degrees) of the impactor's base in one frame: with two
+// points, the line's angle from horizontal; with three or more, the plane
+// normal's angle from vertical. NaN when a point is missing.
+double base_tilt_deg(const std::vector<Eigen::Vector3d>& base_points_m);
+
+// series.csv: one row per force sample over the contact, force clock.
+struct Series {
+  Eigen::VectorXd t_s;
+  Eigen::VectorXd fz_n;
+  Eigen::VectorXd impactor_z_m;   // contact face height, lab frame; NaN across video gaps
+  Eigen::VectorXd deformation_m;  // mat_top_z_m - impactor_z_m
+  Eigen::VectorXd surface_z_m;    // mean of the surface markers
+};
+
+struct TrialResult {
+  std::string id;
+  bool accepted = false;
+  std::string reject_reason;
+  double impact_velocity_m_s = std::numeric_limits<double>::quiet_NaN();     // downward speed at contact
+  double impact_velocity_ci_m_s = std::numeric_limits<double>::quiet_NaN();  // 95 % half-width
+  double max_deformation_m = std::numeric_limits<double>::quiet_NaN();
+  double tilt_deg = std::numeric_limits<double>::quiet_NaN();
+  double peak_force_n = std::numeric_limits<double>::quiet_NaN();
+  double time_to_peak_s = std::numeric_limits<double>::quiet_NaN();  // from contact
+  double contact_time_s = std::numeric_limits<double>::quiet_NaN();  // force clock
+  double video_offset_s = std::numeric_limits<double>::quiet_NaN();  // video clock minus force clock
+
+  // Beyond trial.json's minimum.
+  double video_offset_trajectory_s = std::numeric_limits<double>::quiet_NaN();  // second estimate
+  double video_contact_time_s = std::numeric_limits<double>::quiet_NaN();       // video clock
+  double max_deformation_time_s = std::numeric_limits<double>::quiet_NaN();     // force clock
+  double end_time_s = std::numeric_limits<double>::quiet_NaN();                 // force clock
+  double freefall_rms_m = std::numeric_limits<double>::quiet_NaN();
+  int freefall_frames = 0;
+  double impulse_ratio = std::numeric_limits<double>::quiet_NaN();
+  Series series;
+
+  std::string report() const;
+};
+
+// The trial from a processed force record.
+TrialResult analyse(const forceplate::ForceTrial& force, const reconstruction::Trajectories& markers,
+                    const TrialOptions& options);
+
+// The trial from a raw force record: processes it, and when that fails
+// (dropfit::Error) returns a rejected trial carrying the error text and the
+// video-only measurements (impact velocity, deformation, tilt).
+TrialResult analyse(const forceplate::Resultants& raw_force, const forceplate::ProcessOptions& force_options,
+                    const reconstruction::Trajectories& markers, const TrialOptions& options);
+
+// The trial without a usable force record (e.g. one that could not be
+// converted): rejected with `force_error` as the reason, video-only
+// measurements (impact velocity, deformation, tilt) still reported.
+TrialResult analyse_without_force(const reconstruction::Trajectories& markers, const TrialOptions& options,
+                                  const std::string& force_error);
+
+}  // namespace dropfit::trial
