@@ -103,10 +103,7 @@ TrialOutcome process_trial(const Manifest& manifest, const TrialData& trial,
   } catch (const Error& e) {
     // A force record that cannot even be converted: the trial is rejected
     // with the reason; the video-only numbers are still measured.
-    outcome.result = trial::analyse(forceplate::Resultants{}, force_options(manifest, trial.force),
-                                    outcome.trajectories, options);
-    outcome.result.accepted = false;
-    outcome.result.reject_reason = std::string("force record: ") + e.what();
+    outcome.result = trial::analyse_without_force(outcome.trajectories, options, e.what());
     return outcome;
   }
   outcome.result = trial::analyse(raw, force_options(manifest, trial.force), outcome.trajectories, options);
@@ -248,25 +245,42 @@ RunSummary run_session(const std::string& session_dir, const RunOptions& options
   } else {
     std::vector<std::optional<fitting::FitResult>> fits(options.models.size());
     std::vector<std::string> errors(options.models.size());
-    auto fit_one = [&](size_t k) {
+    auto fit_one = [&](size_t k, const fitting::FitOptions& fit_opts) {
+      say(summary.session, "fitting " + fitting::model_name(options.models[k]));
       try {
-        fits[k] = fitting::fit(fit_data, fit_options(session.manifest, options.models[k]));
+        fits[k] = fitting::fit(fit_data, fit_opts);
       } catch (const std::exception& e) {
         errors[k] = e.what();
       }
     };
+    // The point-mass models first, in parallel; then Model 5, whose numeric
+    // derivatives make each start cost ~100 Model 4 fits, from Model 4's
+    // optimum (its parameters mean the same thing) with one start.
+    std::vector<size_t> first, last;
+    for (size_t k = 0; k < options.models.size(); ++k) {
+      (options.models[k] == fitting::ModelKind::Model5 ? last : first).push_back(k);
+    }
     std::vector<std::thread> workers;
     std::atomic<size_t> next{0};
-    const int threads = std::max(1, std::min<int>(options.threads, static_cast<int>(options.models.size())));
+    const int threads = std::max(1, std::min<int>(options.threads, static_cast<int>(first.size())));
     for (int w = 0; w < threads; ++w) {
       workers.emplace_back([&] {
-        for (size_t k; (k = next++) < options.models.size();) {
-          say(summary.session, "fitting " + fitting::model_name(options.models[k]));
-          fit_one(k);
+        for (size_t i; (i = next++) < first.size();) {
+          fit_one(first[i], fit_options(session.manifest, options.models[first[i]]));
         }
       });
     }
     for (auto& w : workers) w.join();
+    for (size_t k : last) {
+      auto fit_opts = fit_options(session.manifest, options.models[k]);
+      for (size_t j = 0; j < options.models.size(); ++j) {
+        if (options.models[j] == fitting::ModelKind::Model4 && fits[j]) {
+          fit_opts.initial = fits[j]->params;
+          fit_opts.starts = 1;
+        }
+      }
+      fit_one(k, fit_opts);
+    }
     for (size_t k = 0; k < options.models.size(); ++k) {
       const auto name = fitting::model_name(options.models[k]);
       if (!fits[k]) {

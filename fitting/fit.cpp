@@ -626,7 +626,9 @@ Optimum optimise(const std::vector<Prepared>& preps, const ParamSpace& space, co
     ranked.push_back({cost_of(preps, space, o, space.to_mat(cands[i].data()), evals), static_cast<int>(i)});
   // The explicit and data-driven starts always run; the rest by rank.
   std::vector<int> order;
-  const int fixed_starts = o.initial.k1_n_m > 0.0 ? 2 : 1;
+  // A given start with starts == 1 (a warm start, e.g. Model 5 from Model 4's
+  // optimum) runs alone; otherwise the data guess runs too.
+  const int fixed_starts = o.initial.k1_n_m > 0.0 && o.starts > 1 ? 2 : 1;
   for (int i = 0; i < fixed_starts; ++i) order.push_back(i);
   std::sort(ranked.begin(), ranked.end());
   for (const auto& [c, i] : ranked) {
