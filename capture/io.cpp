@@ -22,6 +22,7 @@
 #include <optional>
 #include <regex>
 #include <set>
+#include <sstream>
 #include <string_view>
 #include <toml++/toml.h>
 
@@ -279,6 +280,169 @@ void check_uniform_time(const std::string& file, const std::vector<double>& t, c
 // session.toml
 // ---------------------------------------------------------------------------
 
+// Manifests written like the spec's own example put several key/values on
+// one line separated by ';' (`name = "carpet";  thickness_m = 0.005`), which
+// TOML does not allow. ';' is never valid TOML outside a string or a
+// comment, so splitting such a line into one line per key/value changes the
+// meaning of no valid file. A line is split only when that is unambiguous:
+// it starts outside any multi-line string or array, every ';' on it is
+// outside strings, comments and brackets, and every piece is `key = ...`
+// (the last may be blank or a comment: a trailing ';'). Anything else is
+// left as it is, for toml++ to report at its own position.
+//
+// `origins` maps each line of the rewritten text back to the file: its
+// line, and the code points of the original line before the piece (toml++
+// counts columns in code points), so every error names the file's own line
+// and column.
+struct TomlLineOrigin {
+  int line = 0;           // 1-based line of the file
+  int column_offset = 0;  // added to a rewritten column
+};
+
+struct SplitToml {
+  std::string text;
+  std::vector<TomlLineOrigin> origins;  // [rewritten line - 1]
+
+  // The file's (line, column) of a rewritten position; column 0 stays 0.
+  std::pair<int, int> original(int line, int column) const {
+    if (line <= 0 || origins.empty()) return {line, column};
+    if (line > static_cast<int>(origins.size()))  // past the last line (an error at the end of the file)
+      return {origins.back().line + (line - static_cast<int>(origins.size())), column};
+    const TomlLineOrigin& o = origins[static_cast<std::size_t>(line - 1)];
+    return {o.line, column > 0 ? column + o.column_offset : 0};
+  }
+};
+
+int code_points(std::string_view s) {
+  return static_cast<int>(
+      std::count_if(s.begin(), s.end(), [](char c) { return (static_cast<unsigned char>(c) & 0xC0) != 0x80; }));
+}
+
+bool bare_key_char(char c) {
+  return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' || c == '-';
+}
+
+// `key = ...` with a bare, quoted or dotted key.
+bool starts_with_key_value(std::string_view s) {
+  std::size_t i = 0;
+  auto skip_blanks = [&] {
+    while (i < s.size() && is_blank(s[i])) ++i;
+  };
+  skip_blanks();
+  while (true) {
+    if (i >= s.size()) return false;
+    if (s[i] == '"') {
+      for (++i; i < s.size() && s[i] != '"'; ++i)
+        if (s[i] == '\\') ++i;
+      if (i >= s.size()) return false;
+      ++i;
+    } else if (s[i] == '\'') {
+      const std::size_t close = s.find('\'', i + 1);
+      if (close == std::string_view::npos) return false;
+      i = close + 1;
+    } else {
+      const std::size_t start = i;
+      while (i < s.size() && bare_key_char(s[i])) ++i;
+      if (i == start) return false;
+    }
+    skip_blanks();
+    if (i < s.size() && s[i] == '.') {
+      ++i;
+      skip_blanks();
+      continue;
+    }
+    return i < s.size() && s[i] == '=';
+  }
+}
+
+bool blank_or_comment(std::string_view s) {
+  s = trim(s);
+  return s.empty() || s.front() == '#';
+}
+
+SplitToml split_semicolon_lines(std::string_view text) {
+  enum class State { Normal, MultiBasic, MultiLiteral };
+  State state = State::Normal;
+  int depth = 0;  // open '[' and '{' outside strings and comments
+  SplitToml out;
+  out.text.reserve(text.size() + 64);
+  std::size_t pos = 0;
+  for (int number = 1;; ++number) {
+    const std::size_t nl = text.find('\n', pos);
+    const bool last_line = nl == std::string_view::npos;
+    std::string_view line = text.substr(pos, (last_line ? text.size() : nl) - pos);
+    std::string_view eol = last_line ? "" : "\n";
+    if (!line.empty() && line.back() == '\r') {
+      line.remove_suffix(1);
+      eol = last_line ? "\r" : "\r\n";
+    }
+    pos = last_line ? text.size() : nl + 1;
+
+    const bool starts_top = state == State::Normal && depth == 0;
+    std::vector<std::size_t> semis;
+    for (std::size_t i = 0; i < line.size();) {
+      const char c = line[i];
+      if (state != State::Normal) {
+        const char quote = state == State::MultiBasic ? '"' : '\'';
+        if (state == State::MultiBasic && c == '\\') {
+          i += 2;
+        } else if (c == quote) {
+          std::size_t run = 0;
+          while (i + run < line.size() && line[i + run] == quote) ++run;
+          if (run >= 3) state = State::Normal;
+          i += run;
+        } else {
+          ++i;
+        }
+        continue;
+      }
+      if (c == '#') break;
+      if (c == '"' || c == '\'') {
+        if (line.substr(i, 3) == (c == '"' ? std::string_view("\"\"\"") : std::string_view("'''"))) {
+          state = c == '"' ? State::MultiBasic : State::MultiLiteral;
+          i += 3;
+          continue;
+        }
+        for (++i; i < line.size() && line[i] != c; ++i)
+          if (c == '"' && line[i] == '\\') ++i;
+        ++i;
+        continue;
+      }
+      if (c == '[' || c == '{') ++depth;
+      if ((c == ']' || c == '}') && depth > 0) --depth;
+      if (c == ';' && depth == 0) semis.push_back(i);
+      ++i;
+    }
+
+    bool split = starts_top && !semis.empty();
+    std::vector<std::size_t> starts;
+    if (split) {
+      starts.push_back(0);
+      for (const std::size_t s : semis) starts.push_back(s + 1);
+      for (std::size_t k = 0; k < starts.size() && split; ++k) {
+        const std::size_t stop = k + 1 < starts.size() ? semis[k] : line.size();
+        std::string_view piece = line.substr(starts[k], stop - starts[k]);
+        if (number == 1 && k == 0 && piece.substr(0, 3) == "\xEF\xBB\xBF") piece.remove_prefix(3);  // UTF-8 BOM
+        split = starts_with_key_value(piece) || (k > 0 && k + 1 == starts.size() && blank_or_comment(piece));
+      }
+    }
+    if (split) {
+      for (std::size_t k = 0; k < starts.size(); ++k) {
+        const std::size_t stop = k + 1 < starts.size() ? semis[k] : line.size();
+        out.text += line.substr(starts[k], stop - starts[k]);
+        out.text += k + 1 < starts.size() ? std::string_view("\n") : eol;
+        out.origins.push_back({number, code_points(line.substr(0, starts[k]))});
+      }
+    } else {
+      out.text += line;
+      out.text += eol;
+      out.origins.push_back({number, 0});
+    }
+    if (last_line) break;
+  }
+  return out;
+}
+
 enum class Check { Positive, NonNegative, Finite, Fraction };
 
 std::string type_name(const toml::node& node) {
@@ -302,12 +466,21 @@ class ManifestReader {
 
   Manifest read() {
     require_file(file_);
+    std::string raw;
+    {
+      std::ifstream in(file_, std::ios::binary);
+      if (!in) throw InputError(file_, 0, 0, "", "cannot open");
+      std::ostringstream text;
+      text << in.rdbuf();
+      if (in.bad()) throw InputError(file_, 0, 0, "", "cannot read");
+      raw = text.str();
+    }
+    lines_ = split_semicolon_lines(raw);
     toml::table root;
     try {
-      root = toml::parse_file(file_);
+      root = toml::parse(lines_.text, file_);
     } catch (const toml::parse_error& e) {
-      throw InputError(file_, static_cast<int>(e.source().begin.line), static_cast<int>(e.source().begin.column), "",
-                       std::string(e.description()));
+      fail(e.source(), "", std::string(e.description()));
     }
     check_keys(root, "", {"session", "impactor", "mat", "video", "forceplate", "trial"});
     Manifest m;
@@ -408,8 +581,12 @@ class ManifestReader {
   }
 
  private:
+  // Every position goes through lines_, so that it names the file's own
+  // line and column where a ';'-separated line was split.
   [[noreturn]] void fail(const toml::source_region& where, const std::string& field, const std::string& reason) const {
-    throw InputError(file_, static_cast<int>(where.begin.line), static_cast<int>(where.begin.column), field, reason);
+    const auto [line, column] =
+        lines_.original(static_cast<int>(where.begin.line), static_cast<int>(where.begin.column));
+    throw InputError(file_, line, column, field, reason);
   }
   [[noreturn]] void fail(const toml::node& node, const std::string& field, const std::string& reason) const {
     fail(node.source(), field, reason);
@@ -564,6 +741,7 @@ class ManifestReader {
   }
 
   std::string file_;
+  SplitToml lines_;
 };
 
 // ---------------------------------------------------------------------------

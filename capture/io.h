@@ -40,6 +40,19 @@ namespace dropfit::capture {
 //   also name files, so no '/' or '\\'); base_markers (non-empty) and
 //   surface_markers are names in video.points; trial ids unique and non-empty,
 //   dirs non-empty and relative.
+// Several key/values on one line separated by ';', as the spec's own
+// example writes its layers (`name = "carpet";  thickness_m = 0.005;
+// mass_kg = 0.0`), are accepted although TOML is not: before parsing, such
+// a line is split at its ';' into one line per key/value. Since ';' is
+// never valid TOML outside strings and comments, no valid file changes
+// meaning. A line is split only when that is unambiguous: it does not start
+// inside a multi-line string or array, its ';' are outside strings,
+// comments and brackets (a ';' inside an inline array or table is left for
+// the parser to reject), and every piece reads `key = ...` (a trailing ';',
+// optionally followed by a comment, is allowed). Otherwise the line is
+// parsed as written and the parser's error names it. Either way every
+// error names the file's own line, and the column within that line
+// (counted in characters, as toml++ does).
 Manifest read_manifest(const std::string& path);
 
 // calibration/frame.csv: header id,x_m,y_m,z_m,role (any order, no other

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <exception>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -35,12 +36,22 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   dropfit::cli::CommandContext ctx;
   dropfit::cli::add_registered_commands(app, ctx);
+  // Every error is one line on stderr, "dropfit: error: REASON".
+  auto one_line = [](std::string text) {
+    for (char& c : text)
+      if (c == '\n' || c == '\r') c = ' ';
+    return text;
+  };
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    // --help and --version print as CLI11 does; a usage error (a missing
+    // session folder, a missing option) is one line like any other error.
+    if (e.get_exit_code() == static_cast<int>(CLI::ExitCodes::Success)) return app.exit(e);
+    fmt::print(stderr, "dropfit: error: {} (see dropfit --help)\n", one_line(e.what()));
+    return e.get_exit_code();
   } catch (const std::exception& e) {
-    fmt::print(stderr, "dropfit: error: {}\n", e.what());
+    fmt::print(stderr, "dropfit: error: {}\n", one_line(e.what()));
     return 1;
   }
   return ctx.exit_code;
