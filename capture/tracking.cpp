@@ -15,6 +15,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
+#include <opencv2/videoio/registry.hpp>
 #include <optional>
 #include <sstream>
 #include <utility>
@@ -355,8 +356,9 @@ struct MarkerTracker::Impl {
     return std::max(1.0, 0.5 * std::min(state[a].radius_ref, state[b].radius_ref));
   }
 
-  // Constant velocity (or acceleration) prediction at `frame`; `velocity`
-  // receives the velocity at the last detection (px per frame).
+  // Where point s should be at `frame`: constant velocity from the last two
+  // detections (or constant acceleration from a least-squares quadratic
+  // through the last six); through a gap, constant velocity.
   Eigen::Vector2d predict(const PointState& s, int frame) const {
     const auto& h = s.history;
     const auto& [f1, p1] = h.back();
@@ -458,9 +460,13 @@ struct MarkerTracker::Impl {
   }
 
   // Every blob in point p's gate, with what (if anything) makes it implausible.
-  std::vector<Candidate> candidates(int p, const ImageView8& img, const Eigen::Vector2d& pred, double gate) {
+  // `neighbours` counts the other marker-like blobs in the search window
+  // beyond the gate.
+  std::vector<Candidate> candidates(int p, const ImageView8& img, const Eigen::Vector2d& pred, double gate,
+                                    int& neighbours) {
     const PointState& s = state[p];
     std::vector<Candidate> out;
+    neighbours = 0;
     const PixelWindow w = window_around(pred, gate + 2.0 * s.radius_ref + 3.0, width, height);
     if (empty(w) || w.x1 - w.x0 < 3 || w.y1 - w.y0 < 3) return out;
     const double bg = scan.background(img, w);
@@ -472,7 +478,12 @@ struct MarkerTracker::Impl {
       if (contrast < opt.detection.min_contrast) continue;
       const Eigen::Vector2d centre = c.centre_px();
       const double d = (centre - pred).norm();
-      if (d > gate) continue;
+      if (d > gate) {
+        if (!c.touches_window && !c.touches_image && c.area >= opt.min_area_ratio * s.area_ref &&
+            c.area <= opt.max_area_ratio * s.area_ref)
+          ++neighbours;
+        continue;
+      }
       Candidate cand;
       cand.blob = {centre, static_cast<double>(c.area), c.axis_ratio(), contrast, c.touches_image};
       cand.distance = d;
@@ -480,12 +491,12 @@ struct MarkerTracker::Impl {
       else if (c.touches_window) cand.problem = "blob larger than the search window (merged markers?)";
       else if (c.area > opt.max_area_ratio * s.area_ref || c.area > opt.detection.max_area_px2)
         cand.problem = "blob too large (merged markers?)";
-      cand.too_large = !c.touches_image && (c.touches_window || c.area > opt.max_area_ratio * s.area_ref);
       else if (c.area < opt.min_area_ratio * s.area_ref) cand.problem = "blob too small (partly hidden?)";
       else if (cand.blob.axis_ratio < opt.detection.min_axis_ratio ||
                cand.blob.axis_ratio < s.axis_ref - opt.max_axis_ratio_drop)
         cand.problem = "blob not round (partly hidden?)";
       else if (contrast < opt.min_contrast_ratio * s.contrast_ref) cand.problem = "blob too faint";
+      cand.too_large = !c.touches_image && (c.touches_window || c.area > opt.max_area_ratio * s.area_ref);
       out.push_back(cand);
     }
     std::sort(out.begin(), out.end(), [](const Candidate& a, const Candidate& b) { return a.distance < b.distance; });
@@ -493,7 +504,7 @@ struct MarkerTracker::Impl {
   }
 
   // The nearest plausible candidate, if it is clearly the nearest.
-  Proposal choose(const std::vector<Candidate>& cands, bool reacquiring) const {
+  Proposal choose(const std::vector<Candidate>& cands, int neighbours, bool reacquiring) const {
     Proposal prop;
     if (cands.empty()) {
       prop.flag = TrackFlag::Missing;
@@ -516,8 +527,8 @@ struct MarkerTracker::Impl {
                                   : "gap: two candidates at similar distance from the prediction";
         return prop;
       }
-      prop.second_warning = "another blob inside the search gate (could be confused)";
     }
+    if (cands.size() > 1 || neighbours > 0) prop.second_warning = "another marker inside the search window (could be confused)";
     prop.has_blob = true;
     prop.blob = best.blob;
     prop.flag = reacquiring ? TrackFlag::Reacquired : TrackFlag::Tracked;
@@ -535,6 +546,19 @@ struct MarkerTracker::Impl {
     s.contrast_ref += kFollow * (b.contrast - s.contrast_ref);
     s.axis_ref += kFollow * (b.axis_ratio - s.axis_ref);
     s.radius_ref = std::sqrt(s.area_ref / std::numbers::pi);
+  }
+
+  // For a blob rejected as too large for p: the other marker whose
+  // prediction it covers (the two have merged in the image), or -1.
+  int merged_with(int p, const Proposal& prop, int frame) const {
+    if (prop.has_blob || prop.flag != TrackFlag::Rejected || !prop.merged) return -1;
+    const double reach = std::sqrt(prop.blob.area_px2 / std::numbers::pi);
+    for (int q = 0; q < static_cast<int>(points.size()); ++q) {
+      const PointState& s = state[q];
+      if (q == p || !s.started || s.given_up || s.last_seen == frame) continue;
+      if ((s.prediction - prop.blob.centre_px).norm() <= reach) return q;
+    }
+    return -1;
   }
 
   void add_frame(const ImageView8& img) {
@@ -591,7 +615,11 @@ struct MarkerTracker::Impl {
 
     // Tracked markers: each picks its blob; two picking one blob overlap.
     std::vector<Proposal> props(np);
-    for (int p : tracked) props[p] = choose(candidates(p, img, state[p].prediction, opt.gate_px), false);
+    for (int p : tracked) {
+      int neighbours = 0;
+      const auto cands = candidates(p, img, state[p].prediction, opt.gate_px, neighbours);
+      props[p] = choose(cands, neighbours, false);
+    }
     std::vector<bool> shared(np, false);
     const auto overlap = [&](int a, int b) {
       shared[a] = true;
@@ -607,17 +635,8 @@ struct MarkerTracker::Impl {
       }
     // A blob too large for a marker that also covers another marker's
     // prediction: the two have merged in the image.
-    for (int p : tracked) {
-      if (props[p].has_blob || props[p].flag != TrackFlag::Rejected || !props[p].merged) continue;
-      const double reach = std::sqrt(props[p].blob.area_px2 / std::numbers::pi);
-      for (int q = 0; q < np; ++q) {
-        if (q == p || !state[q].started || state[q].given_up || state[q].last_seen == frame) continue;
-        if ((state[q].prediction - props[p].blob.centre_px).norm() <= reach) {
-          overlap(p, q);
-          break;
-        }
-      }
-    }
+    for (int p : tracked)
+      if (const int q = merged_with(p, props[p], frame); q >= 0) overlap(p, q);
     for (int p : tracked) {
       Proposal& prop = props[p];
       if (shared[p]) {
@@ -641,7 +660,8 @@ struct MarkerTracker::Impl {
       const PointState& s = state[p];
       const int since = frame - s.last_seen;
       const double gate = std::min(opt.max_gate_px, opt.gate_px + opt.widen_px_per_frame * (since - 1));
-      std::vector<Candidate> cands = candidates(p, img, s.prediction, gate);
+      int neighbours = 0;
+      std::vector<Candidate> cands = candidates(p, img, s.prediction, gate, neighbours);
       std::string holder;
       std::erase_if(cands, [&](const Candidate& c) {
         for (const auto& [centre, q] : claimed)
@@ -651,28 +671,32 @@ struct MarkerTracker::Impl {
           }
         return false;
       });
-      props[p] = choose(cands, true);
+      props[p] = choose(cands, neighbours, true);
       if (props[p].has_blob) continue;
+      if (const int q = merged_with(p, props[p], frame); q >= 0) {
+        props[p].flag = TrackFlag::Shared;
+        props[p].reason = fmt::format("gap: overlaps {} in the image (one blob for both)", points[q]);
+        continue;
+      }
       if (props[p].flag == TrackFlag::Missing && !holder.empty()) {
         props[p].flag = TrackFlag::Ambiguous;
         props[p].reason = fmt::format("lost: the only blob near the prediction belongs to {}", holder);
       }
     }
-    for (std::size_t i = 0; i < lost.size(); ++i) {
-      const int a = lost[i];
-      if (!props[a].has_blob) continue;
-      bool clash = false;
-      for (std::size_t j = 0; j < lost.size(); ++j) {
-        const int b = lost[j];
-        if (i == j || !props[b].has_blob) continue;
-        if ((props[a].blob.centre_px - props[b].blob.centre_px).norm() <= same_blob_px(a, b)) clash = true;
+    std::vector<bool> clash(np, false);
+    for (std::size_t i = 0; i < lost.size(); ++i)
+      for (std::size_t j = i + 1; j < lost.size(); ++j) {
+        const int a = lost[i], b = lost[j];
+        if (!props[a].has_blob || !props[b].has_blob) continue;
+        if ((props[a].blob.centre_px - props[b].blob.centre_px).norm() <= same_blob_px(a, b))
+          clash[a] = clash[b] = true;
       }
-      if (clash) {
-        props[a].has_blob = false;
-        props[a].flag = TrackFlag::Ambiguous;
-        props[a].reason = "re-acquisition refused: another lost marker claims the same blob";
+    for (int p : lost)
+      if (clash[p]) {
+        props[p].has_blob = false;
+        props[p].flag = TrackFlag::Ambiguous;
+        props[p].reason = "re-acquisition refused: another lost marker claims the same blob";
       }
-    }
     for (int p : lost) {
       const Proposal& prop = props[p];
       if (prop.has_blob) {
@@ -729,6 +753,8 @@ TrackingResult MarkerTracker::result() const {
     for (int c = 0; c < 2 * np; ++c) r.tracks.uv_px(f, c) = m.uv[static_cast<std::size_t>(f) * 2 * np + c];
   r.flags = m.flags;
   r.warnings = m.warnings;
+  r.image_width_px = m.width;
+  r.image_height_px = m.height;
   std::stable_sort(r.warnings.begin(), r.warnings.end(), [&](const TrackWarning& a, const TrackWarning& b) {
     return a.frame < b.frame;
   });
@@ -883,8 +909,11 @@ FrameSource::FrameSource(const std::string& path) : impl_(std::make_unique<Impl>
   if (!fs::exists(path, ec)) throw InputError(path, 0, 0, "", "no such frames folder or video file");
   impl_->video.emplace();
   bool opened = false;
+  // FFmpeg when OpenCV has it (it reads what cameras and labs write; the
+  // other backends would take a numbered file name for an image pattern).
+  const int backend = cv::videoio_registry::hasBackend(cv::CAP_FFMPEG) ? cv::CAP_FFMPEG : cv::CAP_ANY;
   try {
-    opened = impl_->video->open(path);
+    opened = impl_->video->open(path, backend);
   } catch (const cv::Exception&) {
     opened = false;
   }

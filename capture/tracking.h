@@ -187,6 +187,7 @@ struct TrackingResult {
   std::vector<TrackFlag> flags;
   // Consecutive frames with the same point and reason are one warning.
   std::vector<TrackWarning> warnings;
+  int image_width_px = 0, image_height_px = 0;  // the frames' size
 
   TrackFlag flag(int frame, int point) const { return flags[frame * tracks.n_points() + point]; }
   std::vector<TrackGap> gaps() const;

@@ -1,6 +1,11 @@
-// dropfit simulate --params fit.json --velocity V [--mass M] [--out FILE]
+// dropfit simulate --params fit.json --velocity V [--mass M] [--duration S]
+//                  [--dt S] [--first-output S] [--gravity G] [--out FILE]
 // The force-time curve of any impact with fitted parameters: what a
-// simulator author checks first.
+// simulator author checks first. Samples at t = first_output + i dt from
+// first contact; a fit's series/<trial>.csv is sampled on the trial's own
+// plate clock, whose first sample after contact falls at its t_s[0] (in
+// [0, dt)): pass that as --first-output (with the trial's dt and the
+// manifest's gravity) to reproduce the fit's simulated curve exactly.
 #include <fmt/format.h>
 
 #include <fstream>
@@ -23,6 +28,8 @@ void add_simulate(CLI::App& app, CommandContext& /*ctx*/) {
     double mass_kg = 0.0;
     double duration_s = 0.3;
     double dt_s = 1e-3;
+    double first_output_s = 0.0;
+    double gravity_m_s2 = 9.81;
     std::string out;
   };
   auto args = std::make_shared<Args>();
@@ -34,6 +41,10 @@ void add_simulate(CLI::App& app, CommandContext& /*ctx*/) {
   sub->add_option("--mass", args->mass_kg, "impactor mass, kg (default: fit.json's, else 24)")->check(CLI::PositiveNumber);
   sub->add_option("--duration", args->duration_s, "simulated time from contact, s")->check(CLI::PositiveNumber);
   sub->add_option("--dt", args->dt_s, "output sample spacing, s")->check(CLI::PositiveNumber);
+  sub->add_option("--first-output", args->first_output_s, "time of the first sample after contact, s, in [0, dt)")
+      ->check(CLI::NonNegativeNumber);
+  sub->add_option("--gravity", args->gravity_m_s2, "gravity, m/s^2 (the session manifest's; default 9.81)")
+      ->check(CLI::PositiveNumber);
   sub->add_option("--out", args->out, "write the CSV here instead of printing it");
   sub->callback([args] {
     std::ifstream in(args->params);
@@ -46,6 +57,8 @@ void add_simulate(CLI::App& app, CommandContext& /*ctx*/) {
     impact.velocity_m_s = args->velocity_m_s;
     impact.duration_s = args->duration_s;
     impact.output_dt_s = args->dt_s;
+    impact.first_output_s = args->first_output_s;
+    impact.gravity_m_s2 = args->gravity_m_s2;
     const fitting::Simulation sim = pipeline::simulate_fitted(fit, impact);
     const std::string csv = report::simulation_csv(sim);
     if (args->out.empty()) {

@@ -134,22 +134,22 @@ std::string mjcf_xml(fitting::ModelKind kind, const fitting::MatParams& p, const
   xml += "  <worldbody>\n";
   xml += fmt::format("    <body name=\"mat_bottom\" pos=\"0 0 {:.6g}\">\n", hb);
   xml += fmt::format(
-      "      <joint name=\"mat_bottom_z\" type=\"slide\" axis=\"0 0 1\" stiffness=\"{:.9g}\" damping=\"{:.9g}\"/>\n",
+      "      <joint name=\"mat_bottom_z\" type=\"slide\" axis=\"0 0 1\" stiffness=\"{:.17g}\" damping=\"{:.17g}\"/>\n",
       k_bottom, r_bottom);
-  xml += fmt::format("      <inertial pos=\"0 0 0\" mass=\"{:.9g}\" diaginertia=\"1 1 1\"/>\n", p.m2_kg);
+  xml += fmt::format("      <inertial pos=\"0 0 0\" mass=\"{:.17g}\" diaginertia=\"1 1 1\"/>\n", p.m2_kg);
   xml += fmt::format("      <geom type=\"box\" size=\"{:.6g} {:.6g} {:.6g}\" contype=\"0\" conaffinity=\"0\" rgba=\"0.3 0.4 0.8 1\"/>\n",
                      hx, hy, hb);
   xml += fmt::format("      <body name=\"mat_top\" pos=\"0 0 {:.6g}\">\n", hb + ht);
   xml += fmt::format(
-      "        <joint name=\"mat_top_z\" type=\"slide\" axis=\"0 0 1\" stiffness=\"{:.9g}\" damping=\"{:.9g}\"/>\n",
+      "        <joint name=\"mat_top_z\" type=\"slide\" axis=\"0 0 1\" stiffness=\"{:.17g}\" damping=\"{:.17g}\"/>\n",
       k_top, r_top);
-  xml += fmt::format("        <inertial pos=\"0 0 0\" mass=\"{:.9g}\" diaginertia=\"1 1 1\"/>\n", p.m1_kg);
+  xml += fmt::format("        <inertial pos=\"0 0 0\" mass=\"{:.17g}\" diaginertia=\"1 1 1\"/>\n", p.m1_kg);
   if (four) {
     xml += fmt::format("        <geom type=\"box\" size=\"{:.6g} {:.6g} {:.6g}\" contype=\"0\" conaffinity=\"0\" rgba=\"0.2 0.7 0.3 1\"/>\n",
                        hx, hy, ht);
     xml += fmt::format("        <body name=\"mat_surface\" pos=\"0 0 {:.6g}\">\n", ht);
     xml += fmt::format(
-        "          <joint name=\"mat_surface_z\" type=\"slide\" axis=\"0 0 1\" stiffness=\"{:.9g}\" damping=\"{:.9g}\"/>\n",
+        "          <joint name=\"mat_surface_z\" type=\"slide\" axis=\"0 0 1\" stiffness=\"{:.17g}\" damping=\"{:.17g}\"/>\n",
         p.k1_n_m, p.r1_n_s_m);
     xml += "          <inertial pos=\"0 0 0\" mass=\"0.01\" diaginertia=\"1e-4 1e-4 1e-4\"/>\n";
     xml += fmt::format("          <geom name=\"mat_contact\" type=\"box\" size=\"{:.6g} {:.6g} 0.001\" rgba=\"0.9 0.8 0.2 1\"/>\n",

@@ -36,8 +36,41 @@ void OutputSet::commit(const std::string& out_dir, const std::vector<std::string
                               out_dir, dir));
     }
   }
-  for (const auto& [relative, content] : files_) {
-    write_file_atomic((fs::path(out_dir) / relative).string(), content);
+  // Two phases, so that a failure leaves nothing behind: every folder and
+  // temporary file first, then the renames into place.
+  std::vector<std::pair<fs::path, fs::path>> staged;  // temporary, final
+  auto discard = [&staged] {
+    std::error_code ignore;
+    for (const auto& [temp, target] : staged) fs::remove(temp, ignore);
+  };
+  try {
+    for (const auto& [relative, content] : files_) {
+      const fs::path target = fs::path(out_dir) / relative;
+      std::error_code ec;
+      fs::create_directories(target.parent_path(), ec);
+      if (ec || !fs::is_directory(target.parent_path())) {
+        throw Error(fmt::format("{}: cannot create folder: {}", target.parent_path().string(),
+                                ec ? ec.message() : "a file of that name is in the way"));
+      }
+      if (fs::is_directory(target)) throw Error(fmt::format("{}: a folder of that name is in the way", target.string()));
+      const fs::path temp = target.string() + fmt::format(".tmp-{}", ::getpid());
+      staged.emplace_back(temp, target);
+      std::ofstream out(temp, std::ios::binary | std::ios::trunc);
+      out.write(content.data(), static_cast<std::streamsize>(content.size()));
+      out.flush();
+      if (!out) throw Error(fmt::format("{}: cannot write", temp.string()));
+    }
+  } catch (...) {
+    discard();
+    throw;
+  }
+  for (const auto& [temp, target] : staged) {
+    std::error_code ec;
+    fs::rename(temp, target, ec);
+    if (ec) {
+      discard();
+      throw Error(fmt::format("{}: cannot rename into place: {}", target.string(), ec.message()));
+    }
   }
 }
 

@@ -80,3 +80,21 @@ TEST(OutputSet, RefusesToWriteIntoTheSessionFolder) {
   EXPECT_EQ(text, "{}\n");
   fs::remove_all(root);
 }
+
+TEST(OutputSet, WritesNothingWhenOneFileCannotBeWritten) {
+  const fs::path root = fs::temp_directory_path() / "dropfit-output-partial-test";
+  fs::remove_all(root);
+  fs::create_directories(root / "out");
+  std::ofstream(root / "out" / "trials") << "a file where a folder must go";
+  OutputSet out;
+  out.add("calibration.json", "{}\n");
+  out.add("summary.csv", "trial\n");
+  out.add("trials/trial1/trial.json", "{}\n");
+  EXPECT_THROW(out.commit((root / "out").string()), dropfit::Error);
+  EXPECT_FALSE(fs::exists(root / "out" / "calibration.json"));
+  EXPECT_FALSE(fs::exists(root / "out" / "summary.csv"));
+  size_t entries = 0;
+  for ([[maybe_unused]] const auto& e : fs::directory_iterator(root / "out")) ++entries;
+  EXPECT_EQ(entries, 1u);  // only the file that was in the way; no temporary left
+  fs::remove_all(root);
+}

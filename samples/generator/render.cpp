@@ -8,6 +8,7 @@
 #include <limits>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/videoio.hpp>
 
 #include "core/error.h"
 
@@ -116,7 +117,7 @@ void FootageRenderer::render(const MarkerFootage& footage, int frame, capture::I
       else if (prev.allFinite()) v = c - prev;
     }
     const double smear = v.norm() * opt_.exposure_frames;  // pixels travelled while open
-    const int n_t = std::max(1, static_cast<int>(std::ceil(4.0 * smear)) + 1);
+    const int n_t = std::max(1, static_cast<int>(std::ceil(3.0 * smear)) + 1);  // steps of 1/3 px or less
     std::vector<Eigen::Vector2d> positions;
     for (int t = 0; t < n_t; ++t) {
       const double tau = n_t == 1 ? 0.0 : opt_.exposure_frames * ((t + 0.5) / n_t - 0.5);
@@ -171,7 +172,7 @@ void FootageRenderer::render(const MarkerFootage& footage, int frame, capture::I
   out.pixels.resize(static_cast<std::size_t>(w) * h);
   std::uint64_t state = opt_.seed * 0x2545F4914F6CDD1Dull + static_cast<std::uint64_t>(frame) * 0x9E3779B97F4A7C15ull;
   // Sum of four bytes: mean 510, standard deviation sqrt(4 (256^2 - 1) / 12).
-  const double noise_scale = opt_.noise_grey / std::sqrt(4.0 * (256.0 * 256.0 - 1.0) / 12.0);
+  const float noise_scale = static_cast<float>(opt_.noise_grey / std::sqrt(4.0 * (256.0 * 256.0 - 1.0) / 12.0));
   const std::size_t n = img.size();
   for (std::size_t i = 0; i < n; i += 2) {
     const std::uint64_t r = splitmix64(state);
@@ -179,8 +180,8 @@ void FootageRenderer::render(const MarkerFootage& footage, int frame, capture::I
       const std::uint64_t bits = r >> (32 * j);
       const int s = static_cast<int>(bits & 0xFF) + static_cast<int>((bits >> 8) & 0xFF) +
                     static_cast<int>((bits >> 16) & 0xFF) + static_cast<int>((bits >> 24) & 0xFF);
-      const double value = img[i + j] + noise_scale * (s - 510);
-      out.pixels[i + j] = static_cast<std::uint8_t>(std::clamp(std::lround(value), 0L, 255L));
+      const float value = img[i + j] + noise_scale * static_cast<float>(s - 510);
+      out.pixels[i + j] = static_cast<std::uint8_t>(std::clamp(value, 0.0f, 255.0f) + 0.5f);  // rounded
     }
   }
 }
@@ -202,6 +203,47 @@ std::vector<std::string> write_footage_png(const std::string& folder, const Mark
     files.push_back(path);
   }
   return files;
+}
+
+std::vector<std::string> write_footage_tiff12(const std::string& folder, const MarkerFootage& footage,
+                                              const FootageOptions& options, const std::string& prefix) {
+  std::error_code ec;
+  std::filesystem::create_directories(folder, ec);
+  if (ec) throw InputError(folder, 0, 0, "", "cannot create the folder: " + ec.message());
+  const FootageRenderer renderer(options);
+  std::vector<std::string> files;
+  capture::Image8 img;
+  cv::Mat wide;
+  for (int f = 0; f < footage.n_frames(); ++f) {
+    renderer.render(footage, f, img);
+    const std::string path = (std::filesystem::path(folder) / fmt::format("{}{:06d}.tif", prefix, f)).string();
+    const cv::Mat mat(img.height, img.width, CV_8UC1, img.pixels.data());
+    mat.convertTo(wide, CV_16U, 4095.0 / 255.0);
+    if (!cv::imwrite(path, wide)) throw InputError(path, 0, 0, "", "cannot write the frame");
+    files.push_back(path);
+  }
+  return files;
+}
+
+void write_footage_video(const std::string& path, const MarkerFootage& footage, const FootageOptions& options,
+                         const std::string& fourcc, double frame_rate_hz) {
+  if (fourcc.size() != 4) throw Error(fmt::format("fourcc '{}' is not four characters", fourcc));
+  cv::VideoWriter writer;
+  bool opened = false;
+  try {
+    opened = writer.open(path, cv::CAP_FFMPEG, cv::VideoWriter::fourcc(fourcc[0], fourcc[1], fourcc[2], fourcc[3]),
+                         frame_rate_hz, cv::Size(options.width_px, options.height_px), false);
+  } catch (const cv::Exception&) {
+    opened = false;
+  }
+  if (!opened) throw Error(fmt::format("{}: no video backend can write {} here", path, fourcc));
+  const FootageRenderer renderer(options);
+  capture::Image8 img;
+  for (int f = 0; f < footage.n_frames(); ++f) {
+    renderer.render(footage, f, img);
+    writer.write(cv::Mat(img.height, img.width, CV_8UC1, img.pixels.data()));
+  }
+  writer.release();
 }
 
 }  // namespace dropfit::synth

@@ -82,4 +82,16 @@ class FootageRenderer {
 std::vector<std::string> write_footage_png(const std::string& folder, const MarkerFootage& footage,
                                            const FootageOptions& options, const std::string& prefix = "frame_");
 
+// The same as 16-bit TIFF files holding 12-bit data (grey g written as
+// round(g * 4095 / 255)), as high-speed cameras export them:
+// PREFIX000000.tif, ...
+std::vector<std::string> write_footage_tiff12(const std::string& folder, const MarkerFootage& footage,
+                                              const FootageOptions& options, const std::string& prefix = "frame_");
+
+// Renders every frame into one video file through OpenCV (`fourcc` e.g.
+// "FFV1", lossless, in .avi or .mkv). Throws dropfit::Error when no
+// installed backend can write it.
+void write_footage_video(const std::string& path, const MarkerFootage& footage, const FootageOptions& options,
+                         const std::string& fourcc = "FFV1", double frame_rate_hz = 1000.0);
+
 }  // namespace dropfit::synth
