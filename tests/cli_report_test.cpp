@@ -17,13 +17,13 @@ namespace fs = std::filesystem;
 
 namespace {
 
-struct Run {
+struct ProcessResult {
   int exit_code = -1;
   std::string output;
 };
 
-Run run(const std::string& command) {
-  Run r;
+ProcessResult run_command(const std::string& command) {
+  ProcessResult r;
   FILE* pipe = popen((command + " 2>&1").c_str(), "r");
   if (!pipe) return r;
   char buffer[4096];
@@ -51,14 +51,14 @@ class MainRun : public ::testing::Test {
   static void SetUpTestSuite() {
     out_ = fs::temp_directory_path() / "dropfit-cli-report-test";
     fs::remove_all(out_);
-    result_ = run(std::string(DROPFIT_CLI) + " run " + DROPFIT_SOURCE_DIR + "/samples/demo-session --out " +
+    result_ = run_command(std::string(DROPFIT_CLI) + " run " + DROPFIT_SOURCE_DIR + "/samples/demo-session --out " +
                   out_.string());
   }
   static fs::path out_;
-  static Run result_;
+  static ProcessResult result_;
 };
 fs::path MainRun::out_;
-Run MainRun::result_;
+ProcessResult MainRun::result_;
 
 TEST_F(MainRun, SucceedsAndWritesEveryOutput) {
   ASSERT_EQ(result_.exit_code, 0) << result_.output;
@@ -94,7 +94,7 @@ TEST_F(MainRun, ReportRendersInChromiumWithEveryPlotDrawn) {
                             "--disable-background-networking --disable-component-update --disable-sync "
                             "--user-data-dir=" + profile.string();
   const std::string url = "file://" + (out_ / "report.html").string();
-  const Run dom = run("timeout 120 /usr/bin/chromium " + flags + " --dump-dom " + url);
+  const ProcessResult dom = run_command("timeout 120 /usr/bin/chromium " + flags + " --dump-dom " + url);
   ASSERT_EQ(dom.exit_code, 0) << dom.output.substr(0, 2000);
   // Every plot survived parsing into the DOM, and each has drawn content:
   // a line plot's paths have points, a bar plot has bars.
@@ -114,7 +114,7 @@ TEST_F(MainRun, ReportRendersInChromiumWithEveryPlotDrawn) {
   EXPECT_EQ(drawn, plots);
 
   const fs::path png = out_ / "report.png";
-  const Run shot = run("timeout 120 /usr/bin/chromium " + flags + " --window-size=1100,2400 --screenshot=" +
+  const ProcessResult shot = run_command("timeout 120 /usr/bin/chromium " + flags + " --window-size=1100,2400 --screenshot=" +
                        png.string() + " " + url);
   ASSERT_EQ(shot.exit_code, 0) << shot.output.substr(0, 2000);
   const cv::Mat image = cv::imread(png.string(), cv::IMREAD_GRAYSCALE);
