@@ -12,6 +12,7 @@
 
 #include "capture/io.h"
 #include "core/error.h"
+#include "diagnosis/diagnosis.h"
 
 namespace dropfit::pipeline {
 
@@ -300,6 +301,21 @@ RunSummary run_session(const std::string& session_dir, const RunOptions& options
     }
   }
 
+  if (options.diagnose) {
+    say(summary.session, "closing the loop");
+    try {
+      const diagnosis::DiagnosisResult loop = diagnosis::diagnose(session);
+      out.add("diagnosis.json", diagnosis::diagnosis_json(loop));
+      rep.loop_run = true;
+      rep.loop_baseline_model = loop.baseline_model;
+      rep.loop_unexplained = loop.unexplained;
+      for (const auto& e : loop.effects) {
+        rep.loop_effects.push_back({e.stage, e.name, e.evidence, e.error_before, e.error_after});
+      }
+    } catch (const std::exception& e) {
+      summary.notes.push_back(fmt::format("closing the loop failed: {}", e.what()));
+    }
+  }
   for (const auto& r : results) {
     if (!r.accepted) summary.notes.push_back(fmt::format("trial {} rejected: {}", r.id, r.reject_reason));
   }

@@ -1,0 +1,381 @@
+// The force-plate stage of the loop: baseline drift from the still parts of
+// the record, force scale from impulse and momentum (see diagnosis.h).
+#include <fmt/format.h>
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+
+#include "diagnosis/diagnosis.h"
+#include "diagnosis/internal.h"
+
+namespace dropfit::diagnosis {
+namespace {
+
+// The samples where the zeroed Fz must equal a known level: the quiet
+// pre-trigger part (0) and, after the contact has settled, windows whose SD
+// is within still_sd_factor noise SDs, at 0 (impactor in the air) or m g
+// (impactor at rest), whichever is nearer.
+struct Still {
+  std::vector<Eigen::Index> index;  // into the trial's samples
+  std::vector<double> expected_n;
+  std::vector<bool> after_contact;
+};
+
+double noise_of(const PlateTrial& t) { return std::max(t.noise_n, 1e-3); }
+
+Still still_samples(const PlateTrial& t, const ForceplateStageOptions& o) {
+  Still s;
+  const Eigen::Index n = t.t_s.size();
+  const double weight = o.impactor_mass_kg * o.gravity_m_s2;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (t.t_s(i) >= t.quiet_end_s) break;
+    if (!std::isfinite(t.fz_n(i))) continue;
+    s.index.push_back(i);
+    s.expected_n.push_back(0.0);
+    s.after_contact.push_back(false);
+  }
+  const double dt = n > 1 ? (t.t_s(n - 1) - t.t_s(0)) / static_cast<double>(n - 1) : 1e-3;
+  const auto w = std::max<Eigen::Index>(5, static_cast<Eigen::Index>(std::lround(o.still_window_s / dt)));
+  const double start = t.end_time_s + o.settle_s;
+  Eigen::Index i = 0;
+  while (i < n && t.t_s(i) < start) ++i;
+  const double limit = o.still_sd_factor * noise_of(t);
+  for (; i + w <= n; i += w) {
+    const Eigen::VectorXd seg = t.fz_n.segment(i, w);
+    if (!seg.allFinite()) continue;
+    const double mean = seg.mean();
+    const double sd = std::sqrt((seg.array() - mean).square().sum() / static_cast<double>(w - 1));
+    if (sd > limit) continue;
+    const double level = std::abs(mean) <= std::abs(mean - weight) ? 0.0 : weight;
+    for (Eigen::Index k = i; k < i + w; ++k) {
+      s.index.push_back(k);
+      s.expected_n.push_back(level);
+      s.after_contact.push_back(true);
+    }
+  }
+  return s;
+}
+
+// Columns of the drift candidates for one trial at its still samples.
+double drift_column(const PlateTrial& t, Eigen::Index i, bool from_contact) {
+  return from_contact ? std::max(t.t_s(i) - t.contact_time_s, 0.0) : t.t_s(i);
+}
+
+// Least squares of the still residual on per-trial intercepts and one
+// common drift column, using the rows in `use`. Returns the drift slope and
+// per-trial intercepts.
+struct DriftFit {
+  double slope = 0.0;
+  Eigen::VectorXd intercept;
+  double rss = 0.0;
+};
+
+struct Row {
+  int trial;
+  double residual, column;
+  bool late;  // in the later half of its trial's post-contact still data
+};
+
+DriftFit fit_drift(const std::vector<Row>& rows, int n_trials, bool with_slope, bool skip_late) {
+  std::vector<const Row*> use;
+  for (const auto& r : rows)
+    if (!(skip_late && r.late)) use.push_back(&r);
+  const int p = n_trials + (with_slope ? 1 : 0);
+  Eigen::MatrixXd a = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(use.size()), p);
+  Eigen::VectorXd b(static_cast<Eigen::Index>(use.size()));
+  for (std::size_t k = 0; k < use.size(); ++k) {
+    a(static_cast<Eigen::Index>(k), use[k]->trial) = 1.0;
+    if (with_slope) a(static_cast<Eigen::Index>(k), n_trials) = use[k]->column;
+    b(static_cast<Eigen::Index>(k)) = use[k]->residual;
+  }
+  const Eigen::VectorXd x = a.completeOrthogonalDecomposition().solve(b);
+  DriftFit f;
+  f.intercept = x.head(n_trials);
+  f.slope = with_slope ? x(n_trials) : 0.0;
+  f.rss = (b - a * x).squaredNorm();
+  return f;
+}
+
+}  // namespace
+
+Eigen::VectorXd PlateCorrection::apply(const Eigen::VectorXd& t_s, const Eigen::VectorXd& fz_n,
+                                       double contact_time_s) const {
+  Eigen::VectorXd out = fz_n;
+  if (drift) {
+    for (Eigen::Index i = 0; i < out.size(); ++i)
+      out(i) -= drift_from_contact ? drift_n_s * std::max(t_s(i) - contact_time_s, 0.0)
+                                   : drift_offset_n + drift_n_s * t_s(i);
+  }
+  return out / gain;
+}
+
+double impulse_ratio(const PlateTrial& t, const PlateCorrection& c, double mass_kg, double g) {
+  const double nan = kNaN;
+  const Eigen::Index n = t.t_s.size();
+  if (n < 10 || !std::isfinite(t.impact_velocity_m_s)) return nan;
+  const Eigen::VectorXd f = c.apply(t.t_s, t.fz_n, t.contact_time_s);
+  const double dt = (t.t_s(n - 1) - t.t_s(0)) / static_cast<double>(n - 1);
+  const double weight = mass_kg * g;
+  const double noise = std::max(t.noise_n, 1e-3);
+  // t_e: the middle of the first still 30 ms window after the contact's end.
+  const auto w = std::max<Eigen::Index>(5, static_cast<Eigen::Index>(std::lround(0.03 / dt)));
+  Eigen::Index i = 0;
+  while (i < n && t.t_s(i) < t.end_time_s + 0.01) ++i;
+  Eigen::Index ie = -1;
+  bool resting = false;
+  for (; i + w <= n; i += w / 2) {
+    const Eigen::VectorXd seg = f.segment(i, w);
+    if (!seg.allFinite()) continue;
+    const double mean = seg.mean();
+    const double sd = std::sqrt((seg.array() - mean).square().sum() / static_cast<double>(w - 1));
+    if (sd > 4.0 * noise) continue;
+    if (std::abs(mean) < 5.0 * noise + 0.02 * weight) {
+      ie = i + w / 2;
+      break;
+    }
+    if (std::abs(mean - weight) < 5.0 * noise + 0.02 * weight) {
+      ie = i + w / 2;
+      resting = true;
+      break;
+    }
+  }
+  if (ie < 0) return nan;
+  const double te = t.t_s(ie);
+  // The impactor's upward speed at t_e: free flight z = z0 + v (t - te) - g (t - te)^2 / 2
+  // over the video frames within 40 ms of it (or 0 at rest).
+  double ve = 0.0;
+  if (!resting) {
+    std::vector<double> ts, zs;
+    for (Eigen::Index k = 0; k < t.video_t_s.size(); ++k)
+      if (std::abs(t.video_t_s(k) - te) <= 0.04 && std::isfinite(t.face_z_m(k))) {
+        ts.push_back(t.video_t_s(k) - te);
+        zs.push_back(t.face_z_m(k) + 0.5 * g * (t.video_t_s(k) - te) * (t.video_t_s(k) - te));
+      }
+    if (ts.size() < 10) return nan;
+    Eigen::MatrixXd a(static_cast<Eigen::Index>(ts.size()), 2);
+    Eigen::VectorXd b(static_cast<Eigen::Index>(ts.size()));
+    for (std::size_t k = 0; k < ts.size(); ++k) {
+      a(static_cast<Eigen::Index>(k), 0) = 1.0;
+      a(static_cast<Eigen::Index>(k), 1) = ts[k];
+      b(static_cast<Eigen::Index>(k)) = zs[k];
+    }
+    ve = a.colPivHouseholderQr().solve(b)(1);
+  }
+  // Plate impulse from the contact to t_e (trapezoid; the sample at or just
+  // before the contact starts it).
+  Eigen::Index i0 = 0;
+  while (i0 + 1 < n && t.t_s(i0 + 1) <= t.contact_time_s) ++i0;
+  double impulse = 0.0;
+  for (Eigen::Index k = i0; k < ie; ++k) impulse += 0.5 * (f(k) + f(k + 1)) * dt;
+  const double t_c = t.t_s(i0);
+  const double momentum = mass_kg * (t.impact_velocity_m_s + ve) + weight * (te - t_c);
+  return momentum > 0.0 ? impulse / momentum : nan;
+}
+
+ForceplateDiagnosis diagnose_forceplate(const std::vector<PlateTrial>& trials, const ForceplateStageOptions& o) {
+  ForceplateDiagnosis out;
+  const DecisionOptions& d = o.decision;
+  const int nt = static_cast<int>(trials.size());
+  if (nt == 0) return out;
+
+  // ---- baseline_drift ----
+  std::vector<Row> rows;
+  std::vector<Eigen::VectorXd> segments;  // per trial, for the whiteness test
+  double noise_sq = 0.0;
+  int post_trials = 0;
+  std::vector<Still> stills;
+  for (int k = 0; k < nt; ++k) {
+    const PlateTrial& t = trials[static_cast<std::size_t>(k)];
+    stills.push_back(still_samples(t, o));
+    const Still& s = stills.back();
+    std::vector<double> post_t;
+    for (std::size_t j = 0; j < s.index.size(); ++j)
+      if (s.after_contact[j]) post_t.push_back(t.t_s(s.index[j]));
+    const double split = post_t.empty() ? 0.0 : post_t[post_t.size() / 2];
+    if (!post_t.empty()) ++post_trials;
+    Eigen::VectorXd seg(static_cast<Eigen::Index>(s.index.size()));
+    for (std::size_t j = 0; j < s.index.size(); ++j) {
+      const Eigen::Index i = s.index[j];
+      Row r;
+      r.trial = k;
+      r.residual = t.fz_n(i) - s.expected_n[j];
+      r.column = 0.0;
+      r.late = s.after_contact[j] && t.t_s(i) >= split;
+      rows.push_back(r);
+      seg(static_cast<Eigen::Index>(j)) = r.residual;
+    }
+    segments.push_back(seg);
+    noise_sq += noise_of(t) * noise_of(t);
+  }
+  const double noise = std::sqrt(noise_sq / nt);
+
+  if (post_trials < 2) {
+    out.notes.push_back(fmt::format("forceplate: only {} trial(s) hold still after the contact; baseline drift "
+                                    "cannot be tested",
+                                    post_trials));
+  } else {
+    // Which drift shape: regression of the still residual on a line over the
+    // record and on a ramp from the contact, per-trial intercepts projected out.
+    const auto n_rows = static_cast<Eigen::Index>(rows.size());
+    Eigen::MatrixXd nuisance = Eigen::MatrixXd::Zero(n_rows, nt);
+    Eigen::VectorXd line(n_rows), ramp(n_rows), res(n_rows);
+    {
+      Eigen::Index r = 0;
+      for (int k = 0; k < nt; ++k) {
+        const Still& s = stills[static_cast<std::size_t>(k)];
+        for (std::size_t j = 0; j < s.index.size(); ++j, ++r) {
+          nuisance(r, k) = 1.0;
+          line(r) = drift_column(trials[static_cast<std::size_t>(k)], s.index[j], false);
+          ramp(r) = drift_column(trials[static_cast<std::size_t>(k)], s.index[j], true);
+          res(r) = rows[static_cast<std::size_t>(r)].residual;
+        }
+      }
+    }
+    StructureOptions so;
+    so.alpha = d.alpha;
+    const StructureReport st = analyse_residual(segments, {{"t", "time over the record", line},
+                                                           {"t - t_contact", "time since the contact", ramp}},
+                                                so, nuisance);
+    const TermScore* best = st.terms.empty() ? nullptr : &st.terms.front();
+    const bool from_contact = best && best->name == "t - t_contact";
+    for (Eigen::Index r = 0; r < n_rows; ++r) rows[static_cast<std::size_t>(r)].column = from_contact ? ramp(r) : line(r);
+
+    // Held out: fit on everything but each trial's later post-contact half,
+    // predict that half; paired over trials.
+    const DriftFit flat_early = fit_drift(rows, nt, false, true);
+    const DriftFit slope_early = fit_drift(rows, nt, true, true);
+    Eigen::VectorXd hb = Eigen::VectorXd::Zero(nt), ha = Eigen::VectorXd::Zero(nt), cnt = Eigen::VectorXd::Zero(nt);
+    for (const auto& r : rows) {
+      if (!r.late) continue;
+      const double b = r.residual - flat_early.intercept(r.trial);
+      const double a = r.residual - slope_early.intercept(r.trial) - slope_early.slope * r.column;
+      hb(r.trial) += b * b;
+      ha(r.trial) += a * a;
+      cnt(r.trial) += 1.0;
+    }
+    std::vector<double> vb, va;
+    for (int k = 0; k < nt; ++k)
+      if (cnt(k) > 0) {
+        vb.push_back(std::sqrt(hb(k) / cnt(k)));
+        va.push_back(std::sqrt(ha(k) / cnt(k)));
+      }
+    const Eigen::VectorXd held_b = detail::to_vector(vb), held_a = detail::to_vector(va);
+    const DriftFit flat = fit_drift(rows, nt, false, false);
+    const DriftFit slope = fit_drift(rows, nt, true, false);
+    // rho1 of the drift model's residual, for the effective N.
+    std::vector<Eigen::VectorXd> after_segments;
+    {
+      Eigen::Index r = 0;
+      for (int k = 0; k < nt; ++k) {
+        Eigen::VectorXd seg(segments[static_cast<std::size_t>(k)].size());
+        for (Eigen::Index j = 0; j < seg.size(); ++j, ++r) {
+          const Row& row = rows[static_cast<std::size_t>(r)];
+          seg(j) = row.residual - slope.intercept(k) - slope.slope * row.column;
+        }
+        after_segments.push_back(seg);
+      }
+    }
+    const double rho1 = autocorrelation(after_segments, 1)(0);
+    const detail::Verdict v = detail::judge(held_b, held_a, 0.5 * noise, flat.rss, nt, slope.rss, nt + 1,
+                                            static_cast<double>(rows.size()), rho1, Criterion::AICc, d);
+    if (v.keep()) {
+      Effect e;
+      e.stage = "forceplate";
+      e.name = "baseline_drift";
+      e.evidence = fmt::format(
+          "zeroed Fz where it must hold still correlates with {} (r = {:.2f} over {} samples in {} trials): "
+          "a drift of {:.1f} N/s",
+          best ? best->description : "time", best ? best->r : 0.0, rows.size(), nt, slope.slope);
+      e.error_before = {{"still_rms_n", std::sqrt(flat.rss / static_cast<double>(rows.size()))},
+                        {"heldout_still_rms_n", detail::rms(held_b)}};
+      e.error_after = {{"still_rms_n", std::sqrt(slope.rss / static_cast<double>(rows.size()))},
+                       {"heldout_still_rms_n", detail::rms(held_a)}};
+      e.estimate = {{"drift_n_s", slope.slope}};
+      out.effects.push_back(std::move(e));
+      out.correction.drift = true;
+      out.correction.drift_from_contact = from_contact;
+      out.correction.drift_n_s = slope.slope;
+      // A whole-record line: the zeroing already removed its mean over the
+      // quiet part, so the offset is what the intercepts agree on.
+      out.correction.drift_offset_n = from_contact ? 0.0 : slope.intercept.mean();
+    } else {
+      out.rejected.push_back({"forceplate", "baseline_drift", v.reason("still-part RMS (N)", Criterion::AICc)});
+    }
+    // What remains in the still parts.
+    Whiteness w = ljung_box(out.correction.drift ? after_segments : segments, 20, 0, d.alpha);
+    const double rms_left =
+        std::sqrt((out.correction.drift ? slope.rss : flat.rss) / static_cast<double>(rows.size()));
+    if (!w.white && rms_left > 2.0 * noise) {
+      const PeriodicPeak pk = periodogram_peak(out.correction.drift ? after_segments : segments, 1e-3, d.alpha, 2.0);
+      out.remaining.push_back(
+          {"forceplate", pk.significant ? "periodic_oscillation" : "structured_baseline",
+           pk.significant
+               ? fmt::format("the still parts of Fz oscillate at {:.1f} Hz ({:.1f} N amplitude, {:.0f} % of their "
+                             "variance)",
+                             pk.frequency_hz, pk.amplitude, 100.0 * pk.share)
+               : fmt::format("the still parts of Fz are not flat ({:.1f} N RMS against {:.1f} N noise, rho1 = {:.2f})",
+                             rms_left, noise, w.rho1())});
+    }
+  }
+
+  // ---- force_scale ----
+  std::vector<double> ratios;
+  std::vector<std::string> ids;
+  for (const auto& t : trials) {
+    const double r = impulse_ratio(t, out.correction, o.impactor_mass_kg, o.gravity_m_s2);
+    out.impulse_ratios.push_back(r);
+    if (std::isfinite(r)) {
+      ratios.push_back(r);
+      ids.push_back(t.id);
+    }
+  }
+  const auto nr = static_cast<Eigen::Index>(ratios.size());
+  if (nr < 2) {
+    out.notes.push_back(fmt::format("forceplate: impulse-momentum ratio available for {} trial(s); force scale "
+                                    "cannot be judged",
+                                    nr));
+    return out;
+  }
+  const Eigen::VectorXd rho = detail::to_vector(ratios);
+  const double gain = rho.mean();
+  const double se = detail::sample_sd(rho) / std::sqrt(static_cast<double>(nr));
+  Eigen::VectorXd before(nr), after(nr);
+  for (Eigen::Index i = 0; i < nr; ++i) {
+    before(i) = 100.0 * std::abs(rho(i) - 1.0);
+    after(i) = 100.0 * std::abs(rho(i) / detail::mean_without(rho, i) - 1.0);
+  }
+  const double rss0 = (rho.array() - 1.0).square().sum(), rss1 = (rho.array() - gain).square().sum();
+  const detail::Verdict v = detail::judge(before, after, 0.0, rss0, 0, rss1, 1, static_cast<double>(nr), 0.0,
+                                          Criterion::AICc, d);
+  const bool stands_out = std::abs(gain - 1.0) > std::max(o.min_scale_error, 3.0 * se);
+  if (stands_out && v.keep()) {
+    Effect e;
+    e.stage = "forceplate";
+    e.name = "force_scale";
+    e.evidence = fmt::format(
+        "the plate's impulse over the contact is {:.1f} % {} the impactor's momentum change from video in every "
+        "trial ({:.3f} to {:.3f} over {}): plate gain {:.3f} +- {:.3f}",
+        100.0 * std::abs(gain - 1.0), gain > 1.0 ? "above" : "below", rho.minCoeff(), rho.maxCoeff(), nr, gain, se);
+    e.error_before = {{"impulse_error_pct_rms", detail::rms(before)}, {"impulse_error_pct_max", detail::max_abs(before)}};
+    e.error_after = {{"impulse_error_pct_rms", detail::rms(after)}, {"impulse_error_pct_max", detail::max_abs(after)}};
+    e.estimate = {{"gain", gain}, {"gain_se", se}};
+    out.effects.push_back(std::move(e));
+    out.correction.gain = gain;
+  } else if (stands_out) {
+    out.rejected.push_back({"forceplate", "force_scale", v.reason("impulse error (%)", Criterion::AICc)});
+  } else {
+    out.rejected.push_back({"forceplate", "force_scale",
+                            fmt::format("impulse/momentum {:.3f} +- {:.3f}: within max({:.0f} %, 3 SE) of 1", gain, se,
+                                        100.0 * o.min_scale_error)});
+  }
+  const double scatter = detail::sample_sd(rho) / gain;
+  if (scatter > 0.03)
+    out.remaining.push_back({"forceplate", "impulse_scatter",
+                             fmt::format("impulse/momentum scatters by {:.1f} % between trials: no constant gain "
+                                         "explains it",
+                                         100.0 * scatter)});
+  return out;
+}
+
+}  // namespace dropfit::diagnosis
