@@ -6,6 +6,8 @@
 
 #include <opencv2/imgcodecs.hpp>
 
+#include <unistd.h>
+
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -49,7 +51,8 @@ size_t count(const std::string& text, const std::string& what) {
 class MainRun : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    out_ = fs::temp_directory_path() / "dropfit-cli-report-test";
+    // CTest runs each test in its own process, in parallel: one folder each.
+    out_ = fs::temp_directory_path() / ("dropfit-cli-report-test-" + std::to_string(::getpid()));
     fs::remove_all(out_);
     result_ = run_command(std::string(DROPFIT_CLI) + " run " + DROPFIT_SOURCE_DIR + "/samples/demo-session --out " +
                   out_.string());
