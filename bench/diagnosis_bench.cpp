@@ -35,6 +35,25 @@ void BM_DiagnoseStiffeningSession(benchmark::State& state) {
 }
 BENCHMARK(BM_DiagnoseStiffeningSession)->Unit(benchmark::kMillisecond)->Iterations(3);
 
+// The slowest case: structure that no library effect explains (a plate
+// frame ringing at 28 Hz after the impact), so every candidate is refitted
+// and rejected.
+void BM_DiagnoseUnexplainedSession(benchmark::State& state) {
+  auto s = make("", 0.0);
+  for (std::size_t i = 0; i < s.session.trials.size(); ++i) {
+    ForceRecord& rec = s.session.trials[i].force;
+    const double tc = s.truth.trials[i].contact_time_s;
+    for (Eigen::Index k = 0; k < rec.t_s.size(); ++k) {
+      const double t = rec.t_s(k) - tc;
+      if (t <= 0.0) continue;
+      const double ring = 250.0 * std::exp(-t / 0.15) * std::sin(2.0 * std::numbers::pi * 28.0 * t);
+      for (int c = 4; c < 8; ++c) rec.data(k, c) += ring / 4.0;
+    }
+  }
+  for (auto _ : state) benchmark::DoNotOptimize(diagnosis::diagnose(s.session));
+}
+BENCHMARK(BM_DiagnoseUnexplainedSession)->Unit(benchmark::kMillisecond)->Iterations(2);
+
 void BM_AnalyseResidual(benchmark::State& state) {
   // Five trials of 200 samples, the nine state candidates.
   const int n = 1000;

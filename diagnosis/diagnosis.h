@@ -57,22 +57,34 @@
 //                (r1_unload_n_s_m), rate_dependence (maxwell_k_n_m,
 //                maxwell_tau_s), layer_mass (masses free, total fixed):
 //                fitting/models.h's effect terms, refitted with fitting::fit.
-//                Ranking: a score test: each effect's sensitivity column
-//                (d GRF / d effect parameter at the baseline fit, by finite
-//                differences) with the baseline parameters' own sensitivities
-//                projected out; the share of the residual it explains is the
-//                first-order gain of adding it. Evidence also names the state
-//                term (x^3, xdot unloading, ...) the residual correlates with.
+//                Ranking: a score test (Lagrange multiplier): each effect's
+//                sensitivity column (d GRF / d effect parameter at the current
+//                fit, by finite differences) with the fitted parameters' own
+//                sensitivities projected out; the share of the residual it
+//                explains is the first-order gain of adding it, and its
+//                coefficient starts the refit. Every candidate explaining at
+//                least min_candidate_share is refitted (for Models 3 and 4
+//                also from a start with elements 1 and 2 swapped: two springs
+//                in series give two basins); of those passing both tests the
+//                one with the lowest held-out error is kept (forward
+//                selection), stopping early when a refit leaves the residual
+//                white or at the noise. Evidence also names the state term
+//                (x^3, x while unloading, x xdot, xddot) the residual follows.
 //                Held out: train on the median-velocity trial (the paper's
 //                protocol) or leave-one-trial-out, predict the others;
 //                rms_force_pct_peak and heldout_peak_force_pct_max; AIC on
 //                the training force residuals with the AR(1) effective N.
+//                The loop refits only while the residual fails the whiteness
+//                test and its part above the plate noise is at least
+//                min_structured_pct_peak of the peak force.
 //
 // Table mode (only per-trial peak force, maximum deformation and velocity,
 // as the paper's Table 1): the linear model's leave-one-trial-out peak-force
 // errors are tested for a trend with impact velocity; stiffening is added to
 // a Model 1 fit of the table (done here with fitting::simulate, since
-// fitting::fit_table does not fit effect terms yet).
+// fitting::fit_table does not fit effect terms yet). Each trial's velocity,
+// measured to 0.1 m/s, may carry a correction with a prior (errors in
+// variables; TableStageOptions::velocity_sd_m_s).
 //
 // Everything is numeric: plain values in, a DiagnosisResult out, no file
 // I/O. diagnosis_json formats the result as OUT/diagnosis.json.
@@ -281,7 +293,7 @@ struct MatStageOptions {
   // start. Fewer is faster but can stay in the baseline's basin: Model 4's
   // springs in series trade places, and an effect's optimum may lie in the
   // other basin.
-  int refit_starts = 6;
+  int refit_starts = 4;
 };
 
 struct MatDiagnosis {

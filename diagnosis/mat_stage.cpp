@@ -279,7 +279,8 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
     return 100.0 * excess / std::max(peak, 1e-9);
   };
 
-  std::vector<std::string> tried;
+  std::vector<std::string> added;                   // effects kept, in order
+  std::map<std::string, std::string> last_reason;   // why the others were not
   for (int round = 0; round < static_cast<int>(options.candidates.size()); ++round) {
     // 1. The residual over every trial and its structure.
     const std::vector<Eigen::VectorXd> parts = residuals_on(wins, acc, cur.options, cur.params);
@@ -344,7 +345,6 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
     struct Scored {
       const EffectSpec* spec;
       double share = 0.0, coefficient = 0.0, tau = 0.0;
-      std::string feasibility;
     };
     std::vector<Scored> scored;
     const double k1 = std::max(cur.params.k1_n_m, 1.0);
@@ -361,7 +361,7 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
     for (const auto& name : options.candidates) {
       const EffectSpec* spec = find_spec(name);
       if (!spec) throw Error(fmt::format("diagnose_mat: '{}' is not a mat effect", name));
-      if (std::find(tried.begin(), tried.end(), name) != tried.end()) continue;
+      if (std::find(added.begin(), added.end(), name) != added.end()) continue;
       Scored sc;
       sc.spec = spec;
       if (name == "stiffness_nonlinearity") {
@@ -370,7 +370,9 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
         sc.share = score(sensitivity(wins, acc, cur.options, cur.params, base_grf,
                                      [&](MatParams& q) { q.k1_cubic_n_m3 = c0 + step; }, step),
                          &sc.coefficient);
-        if (c0 + sc.coefficient < 0.0) sc.feasibility = "the residual asks for softening, not stiffening";
+        // Only stiffening is in the library: a softening first-order step
+        // starts the refit from a small stiffening instead.
+        if (c0 + sc.coefficient <= 0.0) sc.coefficient = step - c0;
       } else if (name == "hysteresis") {
         const double r1 = cur.params.r1_n_s_m;
         const double step = 0.1 * r1 + 1.0;
@@ -379,8 +381,11 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
                          &sc.coefficient);
         if (r1 + sc.coefficient <= 0.0) sc.coefficient = -0.9 * r1;
       } else if (name == "rate_dependence") {
+        // The relaxation time whose signature explains most; a first-order
+        // step of the wrong sign (the linearisation about another basin)
+        // starts from a small arm.
+        const double step = 0.02 * k1;
         for (double tau : options.maxwell_taus_s) {
-          const double step = 0.02 * k1;
           double coef = 0.0;
           const double s = score(sensitivity(wins, acc, cur.options, cur.params, base_grf,
                                              [&](MatParams& q) {
@@ -389,40 +394,42 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
                                              },
                                              step),
                                  &coef);
-          if (coef > 0.0 && s > sc.share) {
+          if (s > sc.share || sc.tau == 0.0) {
             sc.share = s;
-            sc.coefficient = coef;
+            sc.coefficient = coef > 0.0 ? coef : 2.5 * step;
             sc.tau = tau;
           }
         }
-        if (sc.tau == 0.0) sc.feasibility = "no relaxation time gives a stiffening Maxwell arm";
       } else if (name == "layer_mass") {
         sc.share = score(sensitivity(wins, acc, cur.options, cur.params, base_grf,
                                      [&](MatParams& q) { q.m1_kg += 0.05; q.m2_kg -= 0.05; }, 0.05),
                          &sc.coefficient);
       }
-      if (!sc.feasibility.empty()) sc.share = 0.0;
       scored.push_back(sc);
     }
     std::stable_sort(scored.begin(), scored.end(), [](const Scored& a, const Scored& b) { return a.share > b.share; });
 
-    // 3. Refit with each candidate in turn (best first); keep the first that
-    // lowers the held-out error beyond noise with the criterion agreeing.
-    bool kept = false;
+    // 3. Refit with every candidate whose signature explains enough; of those
+    // that lower the held-out error beyond noise with the criterion agreeing,
+    // keep the one that predicts best (forward selection: the best, not the
+    // first, so that a term that merely helps does not stand in for the one
+    // that explains).
     const double rss0 = concat(residuals_on(train_wins, train_trs, cur.options, cur.params)).squaredNorm();
     double n_train = 0.0;
     for (const auto& w : train_wins) n_train += static_cast<double>(w.t_s.size());
+    const double floor_pct = 100.0 * (noise > 0.0 ? noise : difference_noise(parts)) / std::max(peak, 1e-9);
+    struct Passed {
+      const Scored* sc;
+      State state;
+      detail::Verdict verdict;
+    };
+    std::vector<Passed> passed;
     for (const Scored& sc : scored) {
       if (sc.share < options.min_candidate_share) {
-        out.rejected.push_back({"mat", sc.spec->name,
-                                sc.feasibility.empty()
-                                    ? fmt::format("its signature explains only {:.1f} % of the residual",
-                                                  100.0 * sc.share)
-                                    : sc.feasibility});
-        tried.push_back(sc.spec->name);
+        last_reason[sc.spec->name] =
+            fmt::format("its signature explains only {:.1f} % of the residual", 100.0 * sc.share);
         continue;
       }
-      tried.push_back(sc.spec->name);
       fitting::FitOptions o = cur.options;
       o.starts = options.refit_starts;
       o.initial = cur.params;
@@ -451,7 +458,6 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
         std::swap(swapped.r1_n_s_m, swapped.r2_n_s_m);
         inits.push_back(swapped);
       }
-      const double floor_pct = 100.0 * (noise > 0.0 ? noise : difference_noise(parts)) / std::max(peak, 1e-9);
       State next;
       detail::Verdict verdict;
       std::string failure;
@@ -479,25 +485,47 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
         const double rho1 = autocorrelation(train_after, 1)(0);
         const detail::Verdict v = detail::judge(detail::to_vector(hb), detail::to_vector(ha), floor_pct, rss0, cur.k,
                                                 rss1, attempt.k, n_train, rho1, options.criterion, d);
-        if (!have || v.keep() || v.held_out.mean_after < verdict.held_out.mean_after) {
+        if (!have || (v.keep() && !verdict.keep()) ||
+            (v.keep() == verdict.keep() && v.held_out.mean_after < verdict.held_out.mean_after)) {
           next = std::move(attempt);
           verdict = v;
           have = true;
         }
         // The other basin only helps a refit that did not predict better.
-        if (verdict.keep() || verdict.held_out.significant) break;
+        if (verdict.held_out.significant) break;
       }
       if (!have) {
-        out.rejected.push_back({"mat", sc.spec->name, failure});
+        last_reason[sc.spec->name] = failure;
         continue;
       }
       if (!verdict.keep()) {
-        out.rejected.push_back(
-            {"mat", sc.spec->name,
-             fmt::format("signature explains {:.0f} % of the residual, but {}", 100.0 * sc.share,
-                         verdict.reason("RMS force (% peak)", options.criterion))});
+        last_reason[sc.spec->name] = fmt::format("signature explains {:.0f} % of the residual, but {}",
+                                                 100.0 * sc.share,
+                                                 verdict.reason("RMS force (% peak)", options.criterion));
         continue;
       }
+      passed.push_back({&sc, std::move(next), verdict});
+      // A candidate that leaves a white residual, or almost nothing above the
+      // noise (a quarter of the gate), cannot be beaten by another: stop.
+      Whiteness w_after;
+      const double left =
+          structured_pct(residuals_on(wins, acc, passed.back().state.options, passed.back().state.params), &w_after);
+      if (w_after.white || left < 0.25 * options.min_structured_pct_peak) break;
+    }
+    if (passed.empty()) break;
+    const auto best = std::min_element(passed.begin(), passed.end(), [](const Passed& a, const Passed& b) {
+      return a.verdict.held_out.mean_after < b.verdict.held_out.mean_after;
+    });
+    for (const auto& p : passed)
+      if (&p != &*best)
+        last_reason[p.sc->spec->name] = fmt::format(
+            "helped (held-out RMS force {:.2f} -> {:.2f} % peak) but {} explained more ({:.2f} %)",
+            p.verdict.held_out.mean_before, p.verdict.held_out.mean_after, best->sc->spec->name,
+            best->verdict.held_out.mean_after);
+    {
+      const Scored& sc = *best->sc;
+      const State& next = best->state;
+      const detail::Verdict& verdict = best->verdict;
       Effect eff;
       eff.stage = "mat";
       eff.name = sc.spec->name;
@@ -531,12 +559,13 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
       eff.error_before = errors_of(cur);
       eff.error_after = errors_of(next);
       out.effects.push_back(std::move(eff));
-      cur = std::move(next);
-      kept = true;
-      break;
+      added.push_back(sc.spec->name);
+      last_reason.erase(sc.spec->name);
     }
-    if (!kept) break;
+    cur = std::move(best->state);
   }
+  for (const auto& name : options.candidates)
+    if (const auto it = last_reason.find(name); it != last_reason.end()) out.rejected.push_back({"mat", name, it->second});
 
   // 4. What remains.
   const std::vector<Eigen::VectorXd> parts = residuals_on(wins, acc, cur.options, cur.params);
@@ -550,7 +579,7 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
     double duration = 0.0;
     for (const auto& w : wins) duration += w.t_s.size() > 0 ? w.t_s(w.t_s.size() - 1) - w.t_s(0) : 0.0;
     duration /= static_cast<double>(wins.size());
-    if (pk.significant && pk.share >= 0.1 && pk.frequency_hz * duration >= 2.5)
+    if (pk.significant && pk.share >= 0.1 && pk.frequency_hz * duration >= 2.0)
       out.remaining.push_back(
           {"mat", "periodic_oscillation",
            fmt::format("the force residual oscillates at {:.1f} Hz ({:.0f} N, {:.0f} % of its variance); no mat "

@@ -228,8 +228,18 @@ TableDiagnosis diagnose_table(const std::vector<fitting::TableTrial>& trials, co
     std::vector<const fitting::TableTrial*> train;
     for (Eigen::Index j = 0; j < n; ++j)
       if (j != i) train.push_back(all[static_cast<std::size_t>(j)]);
-    const TableFit lin = fit_on(train, o, false, starts_for(train, o, &lin_all.params));
-    const TableFit cub = fit_on(train, o, true, starts_for(train, o, &cub_all.params));
+    // Each fold starts from the fit to every trial (close by construction);
+    // the generic starts only when that fails.
+    auto fold = [&](bool cubic, const MatParams& from) {
+      const std::vector<std::vector<double>> all_starts = starts_for(train, o, &from);
+      try {
+        return fit_on(train, o, cubic, {all_starts.front()});
+      } catch (const Error&) {
+        return fit_on(train, o, cubic, all_starts);
+      }
+    };
+    const TableFit lin = fold(false, lin_all.params);
+    const TableFit cub = fold(true, cub_all.params);
     const double v = trials[static_cast<std::size_t>(i)].impact_velocity_m_s;
     const double f = trials[static_cast<std::size_t>(i)].peak_force_n;
     const auto& held = trials[static_cast<std::size_t>(i)];
