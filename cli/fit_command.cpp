@@ -1,4 +1,5 @@
 // dropfit fit SESSION --model 1..5|all [--train TRIAL ...] --out DIR
+#include <algorithm>
 #include <fmt/format.h>
 
 #include "capture/io.h"
@@ -28,6 +29,7 @@ void add_fit(CLI::App& app, CommandContext& /*ctx*/) {
     bool leave_one_out = false;
     bool masses_free = false;
     double loading_weight = 1.0;
+    std::vector<std::string> effects;
   };
   auto args = std::make_shared<Args>();
   auto* sub = app.add_subcommand("fit", "fit the mat models to the trials; predict every trial");
@@ -40,6 +42,9 @@ void add_fit(CLI::App& app, CommandContext& /*ctx*/) {
   sub->add_flag("--masses-free", args->masses_free, "fit the layer masses with their total fixed");
   sub->add_option("--loading-weight", args->loading_weight, "extra weight on the loading phase")
       ->check(CLI::PositiveNumber);
+  sub->add_option("--effect", args->effects,
+                  "also fit an effect parameter: k1_cubic_n_m3, r1_unload_n_s_m, maxwell_k_n_m, maxwell_tau_s")
+      ->check(CLI::IsMember({"k1_cubic_n_m3", "r1_unload_n_s_m", "maxwell_k_n_m", "maxwell_tau_s"}));
   sub->callback([args] {
     const Session session = capture::read_session(args->session);
     const auto cameras = pipeline::cameras_of(pipeline::calibrate_session(session));
@@ -57,6 +62,10 @@ void add_fit(CLI::App& app, CommandContext& /*ctx*/) {
       options.leave_one_out = args->leave_one_out;
       options.masses_free = args->masses_free;
       options.loading_weight = args->loading_weight;
+      options.free_effects = args->effects;
+      if (std::find(args->effects.begin(), args->effects.end(), "maxwell_k_n_m") != args->effects.end() &&
+          std::find(args->effects.begin(), args->effects.end(), "maxwell_tau_s") == args->effects.end())
+        options.effects.maxwell_tau_s = 0.025;  // a foam's relaxation time when tau is not fitted
       const auto fit = fitting::fit(trials, options);
       // One model: OUT/fit.json. All: OUT/fits/modelN/fit.json, and Model 4
       // (the paper's choice) also as OUT/fit.json.

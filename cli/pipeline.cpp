@@ -125,6 +125,8 @@ fitting::TrialData fitting_trial(const Manifest& manifest, const trial::TrialRes
   data.impact_velocity_m_s = result.impact_velocity_m_s;
   data.impactor_mass_kg = manifest.impactor.mass_kg;
   data.gravity_m_s2 = manifest.gravity_m_s2;
+  data.force_noise_n = result.force_noise_n;
+  data.marker_noise_m = result.freefall_rms_m;
   const auto& s = result.series;
   // The surface markers' height at rest: their mean before contact.
   double rest_sum = 0.0;
@@ -136,9 +138,12 @@ fitting::TrialData fitting_trial(const Manifest& manifest, const trial::TrialRes
     }
   }
   const double surface_rest_m = rest_n > 0 ? rest_sum / rest_n : manifest.forceplate.mat_top_z_m;
+  // From a little before the contact estimate: the fit places each trial's
+  // contact on the force clock itself (fitting/fit.h).
+  const double lead_s = 0.005;
   std::vector<Eigen::Index> keep;
   for (Eigen::Index i = 0; i < s.t_s.size(); ++i) {
-    if (s.t_s[i] >= result.contact_time_s) keep.push_back(i);
+    if (s.t_s[i] >= result.contact_time_s - lead_s) keep.push_back(i);
   }
   const auto n = static_cast<Eigen::Index>(keep.size());
   data.t_s.resize(n);

@@ -14,6 +14,9 @@
 #include <numeric>
 #include <random>
 #include <sstream>
+#include <thread>
+#include <atomic>
+#include <utility>
 
 #include "core/error.h"
 #include "fitting/models_impl.h"
@@ -141,14 +144,27 @@ FreeParam log_param(const std::string& name, double lo, double hi) {
   FreeParam f;
   f.name = name;
   f.transform = Transform::Log;
-  f.start_lo = std::log(lo);
-  f.start_hi = std::log(hi);
-  f.lower = std::log(lo / 10.0);
-  f.upper = std::log(hi * 10.0);
+  f.lower = std::log(lo);
+  f.upper = std::log(hi);
+  f.start_lo = f.lower;
+  f.start_hi = f.upper;
   return f;
 }
 
-ParamSpace make_space(const FitOptions& o) {
+// Stiffness bounds from physics: no series spring is softer than a fraction
+// of the effective stiffness the data show, and one far stiffer than it is
+// rigid for this mat (its value no longer changes what is measured).
+std::pair<double, double> stiffness_bounds(const FitOptions& o, double k_eff) {
+  double lo = o.k_min_n_m, hi = o.k_max_n_m;
+  if (std::isfinite(k_eff) && k_eff > 0.0) {
+    lo = std::max(lo, o.k_eff_lower_ratio * k_eff);
+    hi = std::min(hi, o.k_eff_upper_ratio * k_eff);
+    if (!(hi > lo * 1.01)) hi = lo * 10.0;  // absolute limits disagree with the data: keep a range
+  }
+  return {lo, hi};
+}
+
+ParamSpace make_space(const FitOptions& o, double k_eff) {
   ParamSpace s;
   s.model = o.model;
   s.total_mass = o.m1_kg + o.m2_kg;
@@ -158,9 +174,10 @@ ParamSpace make_space(const FitOptions& o) {
   s.base.m1_kg = o.m1_kg;
   s.base.m2_kg = o.m2_kg;
   s.base.m_eff_kg = o.m_eff_kg >= 0.0 ? o.m_eff_kg : 0.0;
+  const auto [k_lo, k_hi] = stiffness_bounds(o, k_eff);
   const ModelKind shape = o.model == ModelKind::Model5 ? ModelKind::Model4 : o.model;
   for (const auto& name : parameter_names(shape, false)) {
-    if (name[0] == 'k') s.free.push_back(log_param(name, o.k_min_n_m, o.k_max_n_m));
+    if (name[0] == 'k') s.free.push_back(log_param(name, k_lo, k_hi));
     else s.free.push_back(log_param(name, o.r_min_n_s_m, o.r_max_n_s_m));
   }
   if (o.model == ModelKind::Model2 && o.m_eff_kg < 0.0) {
@@ -198,7 +215,7 @@ ParamSpace make_space(const FitOptions& o) {
     } else if (name == "r1_unload_n_s_m") {
       s.free.push_back(log_param(name, o.r_min_n_s_m, o.r_max_n_s_m));
     } else if (name == "maxwell_k_n_m") {
-      s.free.push_back(log_param(name, o.k_min_n_m, o.k_max_n_m));
+      s.free.push_back(log_param(name, k_lo, k_hi));
     } else if (name == "maxwell_tau_s") {
       s.free.push_back(log_param(name, 1e-3, 0.3));
     } else {
@@ -209,25 +226,36 @@ ParamSpace make_space(const FitOptions& o) {
 }
 
 // ---------------------------------------------------------------------------
-// A trial prepared for the objective: the window, the sample mapping, the
-// weights.
+// A trial prepared for the objective: the window, the residual samples and
+// their weights, and the simulation grid (from contact, oversampled).
 struct Prepared {
   const TrialData* data = nullptr;
-  Impact impact;            // simulates exactly the window's samples
-  int n_sim = 0;            // simulated samples
-  int i0 = 0;               // first measured index in the window
-  int k0 = 0;               // simulated index of measured index i0
-  int n_win = 0;            // measured samples in the window
+  Impact impact;            // the simulation grid: first_output_s 0, output_dt_s h
+  double h = 0.0;           // grid step
+  int n_grid = 0;
+  double dt = 0.0;          // plate sample spacing
   double window_end_s = 0.0;
   double t_peak_s = 0.0, peak_n = 0.0;
-  std::vector<double> force_w;                   // per window sample
-  std::vector<int> kin_idx, surf_idx;            // window offsets with finite measurements
-  int n_residuals() const {
-    return n_win + static_cast<int>(kin_idx.size()) + static_cast<int>(surf_idx.size());
-  }
+  bool fit_shift = false;      // the clock shift is fitted, within [shift_lo_s, shift_hi_s]
+  double shift_lo_s = 0.0, shift_hi_s = 0.0;
+  std::vector<int> f_idx;   // data indices of the force residuals
+  std::vector<double> f_w;  // their weights (1 / noise)
+  std::vector<int> k_idx;   // data indices of the impactor residuals (t >= 0, measured)
+  double k_w = 0.0;
+  int n_residuals() const { return static_cast<int>(f_idx.size() + k_idx.size()); }
+  bool shifted() const { return fit_shift; }
 };
 
-Prepared prepare(const TrialData& tr, const FitOptions& o) {
+double sample_spacing(const TrialData& tr) {
+  std::vector<double> diffs;
+  for (Eigen::Index i = 1; i < tr.t_s.size(); ++i) diffs.push_back(tr.t_s[i] - tr.t_s[i - 1]);
+  std::nth_element(diffs.begin(), diffs.begin() + diffs.size() / 2, diffs.end());
+  return diffs[diffs.size() / 2];
+}
+
+// `cover_all`: the grid reaches the trial's last sample (predictions), not
+// only the window.
+Prepared prepare(const TrialData& tr, const FitOptions& o, bool cover_all = false) {
   const Eigen::Index n = tr.t_s.size();
   if (n < 3 || tr.grf_n.size() != n)
     throw Error(fmt::format("trial {}: needs at least 3 samples and one force per time", tr.id));
@@ -239,21 +267,20 @@ Prepared prepare(const TrialData& tr, const FitOptions& o) {
     throw Error(fmt::format("trial {}: impact velocity and impactor mass must be positive", tr.id));
   Prepared p;
   p.data = &tr;
-  std::vector<double> diffs;
-  for (Eigen::Index i = 1; i < n; ++i) diffs.push_back(tr.t_s[i] - tr.t_s[i - 1]);
-  std::nth_element(diffs.begin(), diffs.begin() + diffs.size() / 2, diffs.end());
-  const double dt = diffs[diffs.size() / 2];
+  const double dt = sample_spacing(tr);
   if (!(dt > 0.0)) throw Error(fmt::format("trial {}: sample times must increase", tr.id));
+  p.dt = dt;
+  for (Eigen::Index i = 1; i < n; ++i)
+    if (std::abs(tr.t_s[i] - tr.t_s[i - 1] - dt) > 0.01 * dt)
+      throw Error(fmt::format("trial {}: samples are not uniformly spaced (t = {} s)", tr.id, tr.t_s[i]));
   int i0 = 0;
   while (i0 < n && tr.t_s[i0] < -1e-9 * dt) ++i0;
   if (i0 >= n - 2) throw Error(fmt::format("trial {}: fewer than 3 samples after contact (t >= 0)", tr.id));
-  const double t0 = std::max(tr.t_s[i0], 0.0);
-  for (Eigen::Index i = i0; i < n; ++i)
-    if (std::abs(tr.t_s[i] - (t0 + (i - i0) * dt)) > 0.01 * dt)
-      throw Error(fmt::format("trial {}: samples are not uniformly spaced (t = {} s)", tr.id, tr.t_s[i]));
-  p.k0 = static_cast<int>(std::floor(t0 / dt + 1e-9));
-  const double first = std::max(0.0, t0 - p.k0 * dt);
-  p.i0 = i0;
+  p.fit_shift = o.fit_contact_time;
+  if (p.fit_shift) {
+    p.shift_lo_s = o.contact_shift_min_s;
+    p.shift_hi_s = o.contact_shift_max_s;
+  }
 
   // Measured peak and the contact's end.
   int ip = i0;
@@ -284,99 +311,146 @@ Prepared prepare(const TrialData& tr, const FitOptions& o) {
   }
   end = std::min(end, tr.t_s[n - 1]);
   p.window_end_s = end;
-  int i1 = i0;
-  while (i1 + 1 < n && tr.t_s[i1 + 1] <= end + 1e-9 * dt) ++i1;
-  p.n_win = i1 - i0 + 1;
-  p.n_sim = p.k0 + p.n_win;
+
+  const double f_noise = std::max(std::isfinite(tr.force_noise_n) ? tr.force_noise_n : o.force_noise_n,
+                                  o.min_force_noise_n);
+  const double m_noise = std::max(std::isfinite(tr.marker_noise_m) ? tr.marker_noise_m : o.marker_noise_m,
+                                  o.min_marker_noise_m);
+  const double t_from = p.shifted() ? -o.contact_search_s : 0.0;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const double t = tr.t_s[i];
+    if (t < t_from - 1e-9 * dt || t > end + 1e-9 * dt || !std::isfinite(tr.grf_n[i])) continue;
+    p.f_idx.push_back(static_cast<int>(i));
+    p.f_w.push_back((t <= p.t_peak_s ? o.loading_weight : 1.0) / f_noise);
+  }
+  if (o.kinematics_weight > 0.0 && tr.impactor_m.size() == n)
+    for (Eigen::Index i = i0; i < n && tr.t_s[i] <= end + 1e-9 * dt; ++i)
+      if (std::isfinite(tr.impactor_m[i])) p.k_idx.push_back(static_cast<int>(i));
+  p.k_w = o.kinematics_weight / m_noise;
+
+  const int os = std::max(1, o.oversample);
+  p.h = dt / os;
+  const double reach = (cover_all ? std::max(end, tr.t_s[n - 1]) : end) + std::max(-p.shift_lo_s, 0.0) + 3.0 * p.h;
+  p.n_grid = static_cast<int>(std::ceil(reach / p.h)) + 1;
   p.impact.mass_kg = tr.impactor_mass_kg;
   p.impact.velocity_m_s = tr.impact_velocity_m_s;
   p.impact.gravity_m_s2 = tr.gravity_m_s2;
-  p.impact.output_dt_s = dt;
-  p.impact.first_output_s = first;
-  p.impact.duration_s = first + (p.n_sim - 1) * dt + 0.5 * dt;
-
-  p.force_w.resize(p.n_win);
-  for (int w = 0; w < p.n_win; ++w) {
-    const double t = tr.t_s[i0 + w];
-    p.force_w[w] = (t <= p.t_peak_s ? o.loading_weight : 1.0) / o.force_noise_n;
-  }
-  if (o.kinematics_weight > 0.0 && tr.impactor_m.size() == n)
-    for (int w = 0; w < p.n_win; ++w)
-      if (std::isfinite(tr.impactor_m[i0 + w])) p.kin_idx.push_back(w);
-  if (o.surface_weight > 0.0 && tr.surface_m.size() == n)
-    for (int w = 0; w < p.n_win; ++w)
-      if (std::isfinite(tr.surface_m[i0 + w])) p.surf_idx.push_back(w);
+  p.impact.output_dt_s = p.h;
+  p.impact.first_output_s = 0.0;
+  p.impact.duration_s = (p.n_grid - 1) * p.h + 0.5 * p.h;
   return p;
 }
 
-// Residuals of one trial from simulated series (indexed by simulated sample).
-template <typename T>
-void fill_residuals(const Prepared& p, const FitOptions& o, const std::vector<T>& grf,
-                    const std::vector<T>& imp, const std::vector<T>& surf, T* res) {
-  const TrialData& tr = *p.data;
-  int r = 0;
-  for (int w = 0; w < p.n_win; ++w) {
-    const double m = tr.grf_n[p.i0 + w];
-    res[r++] = std::isfinite(m) ? (grf[p.k0 + w] - m) * T(p.force_w[w]) : T(0.0);
-  }
-  const double kin = o.kinematics_weight / o.marker_noise_m;
-  for (int w : p.kin_idx) res[r++] = (imp[p.k0 + w] - tr.impactor_m[p.i0 + w]) * T(kin);
-  const double sw = o.surface_weight / o.marker_noise_m;
-  for (int w : p.surf_idx) {
-    const T d = surf[p.k0 + w] - tr.surface_m[p.i0 + w];
-    if (o.surface_as_residual) {
-      res[r++] = d * T(sw);
-    } else {
-      const double ad = std::abs(detail::scalar_of(d));
-      if (ad <= o.surface_tolerance_m) res[r++] = T(0.0);
-      else if (detail::scalar_of(d) > 0.0) res[r++] = (d - T(o.surface_tolerance_m)) * T(sw);
-      else res[r++] = (-d - T(o.surface_tolerance_m)) * T(sw);
-    }
-  }
+// A simulated series on the grid (step h from contact) at model time tau:
+// Catmull-Rom cubic, so a Jet time carries its derivative. Before contact
+// the value is `before` (force: 0).
+template <typename T, typename S>
+auto on_grid(const std::vector<T>& y, const S& tau, double h, double before) {
+  using R = decltype(std::declval<T>() * std::declval<S>());
+  const int n = static_cast<int>(y.size());
+  if (detail::scalar_of(tau) < 0.0 || n < 2) return R(before);
+  const S pos = tau / h;
+  int i = static_cast<int>(std::floor(detail::scalar_of(pos)));
+  if (i > n - 2) i = n - 2;
+  const S s = pos - double(i);
+  const T y0 = y[i], y1 = y[i + 1];
+  const T ym = i > 0 ? y[i - 1] : T(before);
+  const T y2 = i + 2 < n ? y[i + 2] : T(2.0) * y1 - y0;
+  const T a = T(0.5) * (T(-1.0) * ym + T(3.0) * y0 - T(3.0) * y1 + y2);
+  const T b = T(0.5) * (T(2.0) * ym - T(5.0) * y0 + T(4.0) * y1 - y2);
+  const T c = T(0.5) * (y1 - ym);
+  return R(((a * s + b) * s + c) * s + y0);
 }
 
-// The Ceres cost of one trial with automatic differentiation.
+// Residuals of one trial from the simulated grid series and its clock shift.
+template <typename T, typename D>
+void fill_residuals(const Prepared& p, const std::vector<T>& grf, const std::vector<T>& imp, const D& shift, T* res) {
+  const TrialData& tr = *p.data;
+  int r = 0;
+  for (size_t k = 0; k < p.f_idx.size(); ++k) {
+    const int i = p.f_idx[k];
+    const T f = T(on_grid(grf, tr.t_s[i] - shift, p.h, 0.0));
+    res[r++] = (f - tr.grf_n[i]) * T(p.f_w[k]);
+  }
+  for (int i : p.k_idx) res[r++] = (T(on_grid(imp, tr.t_s[i], p.h, 0.0)) - tr.impactor_m[i]) * T(p.k_w);
+}
+
+// The clock shift that fits a simulated force best (doubles): a scan at a
+// quarter grid step over the bound, then golden-section refinement.
+double profile_shift(const Prepared& p, const std::vector<double>& grf) {
+  if (!p.shifted()) return 0.0;
+  const TrialData& tr = *p.data;
+  auto sse = [&](double shift) {
+    double s = 0.0;
+    for (size_t k = 0; k < p.f_idx.size(); ++k) {
+      const int i = p.f_idx[k];
+      const double d = (on_grid(grf, tr.t_s[i] - shift, p.h, 0.0) - tr.grf_n[i]) * p.f_w[k];
+      s += d * d;
+    }
+    return s;
+  };
+  const double step = 0.25 * p.h;
+  double best = std::clamp(0.0, p.shift_lo_s, p.shift_hi_s), best_c = sse(best);
+  for (double x = p.shift_lo_s; x <= p.shift_hi_s + 1e-12; x += step) {
+    const double c = sse(x);
+    if (c < best_c) { best_c = c; best = x; }
+  }
+  double lo = std::max(p.shift_lo_s, best - step), hi = std::min(p.shift_hi_s, best + step);
+  const double g = 0.5 * (std::sqrt(5.0) - 1.0);
+  double x1 = hi - g * (hi - lo), x2 = lo + g * (hi - lo), c1 = sse(x1), c2 = sse(x2);
+  for (int it = 0; it < 30; ++it) {
+    if (c1 < c2) { hi = x2; x2 = x1; c2 = c1; x1 = hi - g * (hi - lo); c1 = sse(x1); }
+    else { lo = x1; x1 = x2; c1 = c2; x2 = lo + g * (hi - lo); c2 = sse(x2); }
+  }
+  const double x = 0.5 * (lo + hi);
+  return sse(x) < best_c ? x : best;
+}
+
+// The Ceres cost of one trial with automatic differentiation: blocks
+// (model parameters) and, when the clock is fitted, (shift).
 struct AutoTrialCost {
   const Prepared* p;
   const ParamSpace* space;
-  const FitOptions* o;
   detail::Layout layout;
   bool exact;
-  long* evals;
+  std::atomic<long>* evals;
 
   template <typename T>
   bool operator()(T const* const* u, T* res) const {
     const detail::ParamsT<T> pt = space->to_params(u[0]);
     detail::Trace<T> tr;
-    detail::run_model<T>(layout, pt, p->impact, exact, kRk4Step, p->n_sim, tr);
+    detail::run_model<T>(layout, pt, p->impact, exact, kRk4Step, p->n_grid, tr);
     ++*evals;
-    fill_residuals<T>(*p, *o, tr.grf, tr.impactor, tr.surface, res);
+    if (p->shifted()) fill_residuals<T>(*p, tr.grf, tr.impactor, u[1][0], res);
+    else fill_residuals<T>(*p, tr.grf, tr.impactor, 0.0, res);
     for (int i = 0; i < p->n_residuals(); ++i)
       if (!finite_all(res[i])) return false;
     return true;
   }
 };
 
-// Simulates a trial's window in doubles (the callback if given).
+// Simulates a trial's grid in doubles (the callback if given).
 detail::Trace<double> simulate_window(const Prepared& p, const ParamSpace& space, const FitOptions& o,
-                                      const MatParams& mp, long* evals) {
+                                      const MatParams& mp, std::atomic<long>* evals) {
   detail::Trace<double> tr;
   if (o.simulator) {
     const Simulation s = o.simulator(mp, p.impact);
-    if (s.grf_n.size() < p.n_sim - 1 || s.grf_n.size() < 2)
-      throw Error(fmt::format("custom simulator returned {} samples, the fit needs {}", s.grf_n.size(), p.n_sim));
-    // A simulator that samples elsewhere than asked (e.g. ignores
-    // first_output_s) is interpolated linearly onto the requested times.
+    if (s.grf_n.size() < p.n_grid - 1 || s.grf_n.size() < 2)
+      throw Error(fmt::format("custom simulator returned {} samples, the fit needs {}", s.grf_n.size(), p.n_grid));
+    // A simulator that samples elsewhere than asked is interpolated linearly
+    // onto the requested times.
     const double dt = p.impact.output_dt_s, first = p.impact.first_output_s;
-    const bool aligned = s.t_s.size() == 0 || std::abs(s.t_s[0] - first) < 1e-9 * std::max(dt, 1e-12) + 1e-12;
+    const double tol = 1e-9 * std::max(dt, 1e-12) + 1e-12;
+    const bool aligned = s.t_s.size() == 0 || (std::abs(s.t_s[0] - first) < tol &&
+                                               (s.t_s.size() < 2 || std::abs(s.t_s[1] - s.t_s[0] - dt) < 1e3 * tol));
     auto vec = [&](const Eigen::VectorXd& v) {
-      std::vector<double> out(p.n_sim, kNaN);
+      std::vector<double> out(p.n_grid, kNaN);
       if (aligned || s.t_s.size() != v.size() || v.size() < 2) {
-        for (int i = 0; i < p.n_sim && i < v.size(); ++i) out[i] = v[i];
+        for (int i = 0; i < p.n_grid; ++i) out[i] = v.size() > 0 ? v[std::min<Eigen::Index>(i, v.size() - 1)] : kNaN;
         return out;
       }
       Eigen::Index j = 0;
-      for (int i = 0; i < p.n_sim; ++i) {
+      for (int i = 0; i < p.n_grid; ++i) {
         const double t = first + i * dt;
         while (j + 2 < v.size() && s.t_s[j + 1] < t) ++j;
         const double a = std::clamp((t - s.t_s[j]) / (s.t_s[j + 1] - s.t_s[j]), 0.0, 1.0);
@@ -392,50 +466,102 @@ detail::Trace<double> simulate_window(const Prepared& p, const ParamSpace& space
   } else {
     const ModelKind shape = space.model;
     const detail::Layout layout = detail::layout_for(shape, shape == ModelKind::Model2 && mp.m_eff_kg <= 0.0);
-    detail::run_model<double>(layout, detail::to_params_t<double>(shape, mp), p.impact, !space.nonlinear() && !mp.has_effects(),
-                              kRk4Step, p.n_sim, tr);
+    detail::run_model<double>(layout, detail::to_params_t<double>(shape, mp), p.impact,
+                              !space.nonlinear() && !mp.has_effects(), kRk4Step, p.n_grid, tr);
   }
   if (evals) ++*evals;
   return tr;
 }
 
-// The Ceres cost of one trial with central numeric differences (callback).
-struct NumericTrialCost {
-  const Prepared* p;
-  const ParamSpace* space;
-  const FitOptions* o;
-  long* evals;
-  bool operator()(double const* const* u, double* res) const {
-    const MatParams mp = space->to_mat(u[0]);
-    try {
-      const detail::Trace<double> tr = simulate_window(*p, *space, *o, mp, evals);
-      fill_residuals<double>(*p, *o, tr.grf, tr.impactor, tr.surface, res);
-    } catch (const Error&) {
-      return false;
+// The Ceres cost of one trial through a simulate callback (Model 5): model
+// parameters by central differences, the clock shift analytically (the
+// simulation does not depend on it).
+class NumericTrialCost : public ceres::CostFunction {
+ public:
+  NumericTrialCost(const Prepared* p, const ParamSpace* space, const FitOptions* o, std::atomic<long>* evals)
+      : p_(p), space_(space), o_(o), evals_(evals) {
+    mutable_parameter_block_sizes()->push_back(space->size());
+    if (p->shifted()) mutable_parameter_block_sizes()->push_back(1);
+    set_num_residuals(p->n_residuals());
+  }
+
+  bool Evaluate(double const* const* u, double* res, double** jac) const override {
+    const int n = space_->size(), m = p_->n_residuals();
+    const double shift = p_->shifted() ? u[1][0] : 0.0;
+    auto eval = [&](const double* uu, double* out) {
+      try {
+        const detail::Trace<double> tr = simulate_window(*p_, *space_, *o_, space_->to_mat(uu), evals_);
+        fill_residuals<double>(*p_, tr.grf, tr.impactor, shift, out);
+        if (jac && p_->shifted() && jac[1] && out == res) {
+          // d res / d shift from the interpolant's derivative.
+          using J1 = ceres::Jet<double, 1>;
+          const TrialData& td = *p_->data;
+          for (size_t k = 0; k < p_->f_idx.size(); ++k) {
+            const int i = p_->f_idx[k];
+            const J1 f = on_grid(tr.grf, J1(td.t_s[i]) - J1(shift, 0), p_->h, 0.0);
+            jac[1][k] = f.v[0] * p_->f_w[k];
+          }
+          for (size_t k = p_->f_idx.size(); k < static_cast<size_t>(m); ++k) jac[1][k] = 0.0;
+        }
+      } catch (const Error&) {
+        return false;
+      }
+      for (int i = 0; i < m; ++i)
+        if (!std::isfinite(out[i])) return false;
+      return true;
+    };
+    if (!eval(u[0], res)) return false;
+    if (jac && jac[0]) {
+      std::vector<double> up(u[0], u[0] + n), rp(m), rm(m);
+      for (int j = 0; j < n; ++j) {
+        const double step = 1e-5 * std::max(std::abs(u[0][j]), 1.0);
+        up[j] = u[0][j] + step;
+        if (!eval(up.data(), rp.data())) return false;
+        up[j] = u[0][j] - step;
+        if (!eval(up.data(), rm.data())) return false;
+        up[j] = u[0][j];
+        for (int i = 0; i < m; ++i) jac[0][i * n + j] = (rp[i] - rm[i]) / (2.0 * step);
+      }
     }
-    for (int i = 0; i < p->n_residuals(); ++i)
-      if (!std::isfinite(res[i])) return false;
     return true;
   }
+
+ private:
+  const Prepared* p_;
+  const ParamSpace* space_;
+  const FitOptions* o_;
+  std::atomic<long>* evals_;
 };
 
-// Residual vector (doubles) over the prepared trials.
+// One trial's residuals (doubles) with its clock shift profiled out; the
+// shift is returned through `shift`.
+void trial_residuals(const Prepared& p, const ParamSpace& space, const FitOptions& o, const MatParams& mp,
+                     std::atomic<long>* evals, double* out, double* shift) {
+  const detail::Trace<double> tr = simulate_window(p, space, o, mp, evals);
+  const double s = profile_shift(p, tr.grf);
+  fill_residuals<double>(p, tr.grf, tr.impactor, s, out);
+  if (shift) *shift = s;
+}
+
+// Residual vector (doubles) over the prepared trials, shifts profiled.
 Eigen::VectorXd residual_vector(const std::vector<Prepared>& preps, const ParamSpace& space, const FitOptions& o,
-                                const MatParams& mp, long* evals) {
+                                const MatParams& mp, std::atomic<long>* evals, std::vector<double>* shifts = nullptr) {
   int m = 0;
   for (const auto& p : preps) m += p.n_residuals();
   Eigen::VectorXd r(m);
   int off = 0;
+  if (shifts) shifts->clear();
   for (const auto& p : preps) {
-    const detail::Trace<double> tr = simulate_window(p, space, o, mp, evals);
-    fill_residuals<double>(p, o, tr.grf, tr.impactor, tr.surface, r.data() + off);
+    double s = 0.0;
+    trial_residuals(p, space, o, mp, evals, r.data() + off, &s);
+    if (shifts) shifts->push_back(s);
     off += p.n_residuals();
   }
   return r;
 }
 
 double cost_of(const std::vector<Prepared>& preps, const ParamSpace& space, const FitOptions& o,
-               const MatParams& mp, long* evals) {
+               const MatParams& mp, std::atomic<long>* evals) {
   try {
     const Eigen::VectorXd r = residual_vector(preps, space, o, mp, evals);
     const double c = 0.5 * r.squaredNorm();
@@ -445,21 +571,32 @@ double cost_of(const std::vector<Prepared>& preps, const ParamSpace& space, cons
   }
 }
 
-// A start from the data: effective stiffness from peak force and travel.
-MatParams data_guess(const std::vector<Prepared>& preps, const FitOptions& o) {
-  const Prepared& p = preps.front();
-  const TrialData& tr = *p.data;
-  double x_max = kNaN;
-  if (tr.impactor_m.size() == tr.t_s.size()) {
-    double mx = -1.0;
-    for (Eigen::Index i = 0; i < tr.impactor_m.size(); ++i)
-      if (std::isfinite(tr.impactor_m[i])) mx = std::max(mx, tr.impactor_m[i]);
-    if (mx > 0.0) x_max = mx;
+// The effective stiffness the training data show: peak force over the
+// largest measured travel (energy balance when travel was not measured).
+double effective_stiffness(const std::vector<Prepared>& preps) {
+  std::vector<double> ks;
+  for (const auto& p : preps) {
+    const TrialData& tr = *p.data;
+    double x_max = -1.0;
+    for (int i : p.k_idx) x_max = std::max(x_max, tr.impactor_m[i]);
+    const double F = p.peak_n;
+    if (!(F > 0.0)) continue;
+    if (!(x_max > 1e-4)) {
+      const double v = std::max(tr.impact_velocity_m_s, 0.5);
+      x_max = tr.impactor_mass_kg * v * v / F;
+    }
+    ks.push_back(F / x_max);
   }
-  const double M = tr.impactor_mass_kg, v = std::max(tr.impact_velocity_m_s, 0.5);
-  const double F = std::max(p.peak_n, 100.0);
-  if (!std::isfinite(x_max)) x_max = M * v * v / F;  // energy: F x / 2 ~ M v^2 / 2
-  const double k = std::clamp(F / x_max, o.k_min_n_m, o.k_max_n_m);
+  if (ks.empty()) return kNaN;
+  std::sort(ks.begin(), ks.end());
+  return ks[ks.size() / 2];
+}
+
+// A start from the data: the effective stiffness put into one spring (the
+// others much stiffer), light damping.
+MatParams data_guess(double k_eff, const FitOptions& o, const TrialData& tr) {
+  const double M = tr.impactor_mass_kg;
+  const double k = std::isfinite(k_eff) ? k_eff : 1e5;
   const double rc = 2.0 * std::sqrt(k * M);  // critical damping on the impactor
   MatParams g;
   g.m1_kg = o.m1_kg;
@@ -493,38 +630,47 @@ double halton(int index, int base) {
 
 struct Optimum {
   Eigen::VectorXd u;
+  std::vector<double> shifts;  // per prepared trial
   double cost = std::numeric_limits<double>::infinity();
-  Eigen::MatrixXd jacobian;  // at u, residuals x parameters (u space)
+  Eigen::MatrixXd jacobian;  // at u: residuals x (parameters, then the fitted shifts)
   Eigen::VectorXd residuals;
 };
 
-// Builds the Ceres problem over the prepared trials.
+// Builds the Ceres problem over the prepared trials; `shifts` holds one
+// value per trial (used only where the trial's clock is fitted).
 std::unique_ptr<ceres::Problem> make_problem(const std::vector<Prepared>& preps, const ParamSpace& space,
-                                             const FitOptions& o, double* u, long* evals) {
+                                             const FitOptions& o, double* u, std::vector<double>& shifts,
+                                             std::atomic<long>* evals, std::vector<double*>* blocks) {
   ceres::Problem::Options po;
   auto problem = std::make_unique<ceres::Problem>(po);
   const bool numeric = static_cast<bool>(o.simulator) || o.model == ModelKind::Model5;
   const ModelKind shape = space.model;
-  const detail::Layout layout =
-      detail::layout_for(shape, shape == ModelKind::Model2 && o.m_eff_kg == 0.0);
-  for (const auto& p : preps) {
+  const detail::Layout layout = detail::layout_for(shape, shape == ModelKind::Model2 && o.m_eff_kg == 0.0);
+  blocks->assign(1, u);
+  problem->AddParameterBlock(u, space.size());
+  for (size_t t = 0; t < preps.size(); ++t) {
+    const Prepared& p = preps[t];
+    std::vector<double*> params = {u};
+    if (p.shifted()) {
+      problem->AddParameterBlock(&shifts[t], 1);
+      shifts[t] = std::clamp(shifts[t], p.shift_lo_s, p.shift_hi_s);
+      problem->SetParameterLowerBound(&shifts[t], 0, p.shift_lo_s);
+      problem->SetParameterUpperBound(&shifts[t], 0, p.shift_hi_s);
+      params.push_back(&shifts[t]);
+      blocks->push_back(&shifts[t]);
+    }
     ceres::CostFunction* cf;
     if (numeric) {
-      ceres::NumericDiffOptions nd;
-      nd.relative_step_size = 1e-5;
-      auto* c = new ceres::DynamicNumericDiffCostFunction<NumericTrialCost, ceres::CENTRAL>(
-          new NumericTrialCost{&p, &space, &o, evals}, ceres::TAKE_OWNERSHIP, nd);
-      c->AddParameterBlock(space.size());
-      c->SetNumResiduals(p.n_residuals());
-      cf = c;
+      cf = new NumericTrialCost(&p, &space, &o, evals);
     } else {
       auto* c = new ceres::DynamicAutoDiffCostFunction<AutoTrialCost, 8>(
-          new AutoTrialCost{&p, &space, &o, layout, !space.nonlinear(), evals});
+          new AutoTrialCost{&p, &space, layout, !space.nonlinear(), evals});
       c->AddParameterBlock(space.size());
+      if (p.shifted()) c->AddParameterBlock(1);
       c->SetNumResiduals(p.n_residuals());
       cf = c;
     }
-    problem->AddResidualBlock(cf, nullptr, u);
+    problem->AddResidualBlock(cf, nullptr, params);
   }
   for (int i = 0; i < space.size(); ++i) {
     problem->SetParameterLowerBound(u, i, space.free[i].lower);
@@ -533,29 +679,44 @@ std::unique_ptr<ceres::Problem> make_problem(const std::vector<Prepared>& preps,
   return problem;
 }
 
+// Levenberg-Marquardt from u0 (shifts profiled at u0 to start).
 Optimum run_ceres(const std::vector<Prepared>& preps, const ParamSpace& space, const FitOptions& o,
-                  const Eigen::VectorXd& u0, long* evals, bool want_jacobian) {
+                  const Eigen::VectorXd& u0, std::atomic<long>* evals, bool want_jacobian,
+                  const std::vector<double>* shifts0 = nullptr) {
   Optimum best;
   std::vector<double> u(u0.data(), u0.data() + u0.size());
-  auto problem = make_problem(preps, space, o, u.data(), evals);
+  std::vector<double> shifts(preps.size(), 0.0);
+  if (shifts0 && shifts0->size() == preps.size()) {
+    shifts = *shifts0;
+  } else {
+    try {
+      residual_vector(preps, space, o, space.to_mat(u.data()), evals, &shifts);
+    } catch (const Error&) {
+      std::fill(shifts.begin(), shifts.end(), 0.0);
+    }
+  }
+  std::vector<double*> blocks;
+  auto problem = make_problem(preps, space, o, u.data(), shifts, evals, &blocks);
   ceres::Solver::Options so;
   so.linear_solver_type = ceres::DENSE_QR;
   so.max_num_iterations = o.max_iterations;
-  so.function_tolerance = 1e-12;
-  so.gradient_tolerance = 1e-14;
-  so.parameter_tolerance = 1e-12;
+  so.function_tolerance = 1e-10;
+  so.gradient_tolerance = 1e-12;
+  so.parameter_tolerance = 1e-10;
   so.logging_type = ceres::SILENT;
   so.minimizer_progress_to_stdout = false;
   so.num_threads = 1;
   ceres::Solver::Summary summary;
   ceres::Solve(so, problem.get(), &summary);
   best.u = Eigen::Map<Eigen::VectorXd>(u.data(), u.size());
+  best.shifts = shifts;
   best.cost = summary.IsSolutionUsable() ? summary.final_cost : std::numeric_limits<double>::infinity();
   if (want_jacobian) {
     double cost = 0.0;
     std::vector<double> res;
     ceres::CRSMatrix crs;
     ceres::Problem::EvaluateOptions eo;
+    eo.parameter_blocks = blocks;
     if (problem->Evaluate(eo, &cost, &res, nullptr, &crs)) {
       best.residuals = Eigen::Map<Eigen::VectorXd>(res.data(), res.size());
       best.jacobian = Eigen::MatrixXd::Zero(crs.num_rows, crs.num_cols);
@@ -566,14 +727,61 @@ Optimum run_ceres(const std::vector<Prepared>& preps, const ParamSpace& space, c
   return best;
 }
 
-// Multi-start: candidate points (the given start, the data guess, Halton
-// points in the start ranges), ranked by cost; Ceres from the best.
-Optimum optimise(const std::vector<Prepared>& preps, const ParamSpace& space, const FitOptions& o, long* evals,
-                 std::vector<std::string>* warnings, std::string* used) {
+// Which spring is softest, middle, stiffest: the basin label of a start.
+int ordering_of(const ParamSpace& space, const Eigen::VectorXd& u) {
+  std::vector<std::pair<double, int>> ks;
+  for (int j = 0; j < space.size(); ++j)
+    if (space.free[j].name.size() == 6 && space.free[j].name[0] == 'k' && space.free[j].name.substr(2) == "_n_m")
+      ks.push_back({u[j], j});
+  std::sort(ks.begin(), ks.end());
+  int label = 0;
+  for (const auto& [v, j] : ks) label = label * 8 + j + 1;
+  return label;
+}
+
+// Starts: the given one, the data guess, every ordering of the series
+// springs at two spreads and two damping levels, and quasi-random points
+// over the whole box (log space).
+std::vector<Eigen::VectorXd> candidate_starts(const ParamSpace& space, const FitOptions& o, double k_eff,
+                                              const TrialData& first) {
   const int n = space.size();
   std::vector<Eigen::VectorXd> cands;
   if (o.initial.k1_n_m > 0.0) cands.push_back(space.from_mat(o.initial));
-  cands.push_back(space.from_mat(data_guess(preps, o)));
+  cands.push_back(space.from_mat(data_guess(k_eff, o, first)));
+  std::vector<int> kj, rj;
+  for (int j = 0; j < n; ++j) {
+    const std::string& nm = space.free[j].name;
+    if (nm == "k1_n_m" || nm == "k2_n_m" || nm == "k3_n_m") kj.push_back(j);
+    if (nm == "r1_n_s_m" || nm == "r2_n_s_m" || nm == "r3_n_s_m") rj.push_back(j);
+  }
+  const double k = std::isfinite(k_eff) ? k_eff : std::sqrt(o.k_min_n_m * o.k_max_n_m);
+  const double M = first.impactor_mass_kg;
+  if (kj.size() >= 2 && rj.size() == kj.size()) {
+    // Multipliers of k_eff for the stiffer springs; the softest makes the
+    // series come out at k_eff.
+    const std::vector<std::vector<double>> spreads =
+        kj.size() == 3 ? std::vector<std::vector<double>>{{8.0, 40.0}, {30.0, 300.0}, {3.0, 12.0}}
+                       : std::vector<std::vector<double>>{{10.0}, {100.0}, {3.0}};
+    std::vector<int> perm(kj.size());
+    std::iota(perm.begin(), perm.end(), 0);
+    do {
+      for (const auto& sp : spreads) {
+        std::vector<double> mult(kj.size());
+        double inv = 1.0;
+        for (size_t a = 1; a < kj.size(); ++a) { mult[a] = sp[a - 1]; inv -= 1.0 / sp[a - 1]; }
+        mult[0] = 1.0 / std::max(inv, 0.05);
+        for (double zeta : {0.03, 0.2}) {
+          MatParams g = data_guess(k_eff, o, first);
+          for (size_t a = 0; a < kj.size(); ++a) {
+            const double ka = k * mult[perm[a]];
+            set_parameter(g, space.free[kj[a]].name, ka);
+            set_parameter(g, space.free[rj[a]].name, zeta * 2.0 * std::sqrt(ka * M));
+          }
+          cands.push_back(space.from_mat(g));
+        }
+      }
+    } while (std::next_permutation(perm.begin(), perm.end()));
+  }
   const int n_random = std::max(4 * o.starts, 8);
   const int primes[] = {2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37, 41, 43};
   const int skip = static_cast<int>(o.seed % 1000) + 1;
@@ -585,6 +793,31 @@ Optimum optimise(const std::vector<Prepared>& preps, const ParamSpace& space, co
     }
     cands.push_back(u);
   }
+  for (auto& c : cands)
+    for (int j = 0; j < n; ++j) c[j] = std::clamp(c[j], space.free[j].lower, space.free[j].upper);
+  return cands;
+}
+
+// Chi-square quantile (Wilson-Hilferty), accurate to ~1 % for p >= 2.
+double chi2_quantile_95(int dof) {
+  const double p = std::max(dof, 1);
+  const double z = 1.6448536269514722;
+  const double a = 2.0 / (9.0 * p);
+  return p * std::pow(1.0 - a + z * std::sqrt(a), 3.0);
+}
+
+struct Search {
+  Optimum best;
+  std::vector<Optimum> others;  // every other converged run
+};
+
+// Multi-start: every candidate screened by cost; Levenberg-Marquardt from
+// the best candidate of each spring ordering and the best overall, in
+// parallel.
+Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, const FitOptions& o, double k_eff,
+                std::atomic<long>* evals, std::vector<std::string>* warnings, std::string* used) {
+  const int n = space.size();
+  const std::vector<Eigen::VectorXd> cands = candidate_starts(space, o, k_eff, *preps.front().data);
 
   if (o.optimizer == Optimizer::Annealing) {
     *used = "annealing (Corana et al. 1987)";
@@ -594,7 +827,6 @@ Optimum optimise(const std::vector<Prepared>& preps, const ParamSpace& space, co
       hi[j] = space.free[j].upper;
     }
     auto f = [&](const Eigen::VectorXd& u) { return cost_of(preps, space, o, space.to_mat(u.data()), evals); };
-    // Start from the best candidate, as the paper's runs started from a guess.
     Eigen::VectorXd x0 = cands.front();
     double f0 = f(x0);
     for (const auto& c : cands) {
@@ -603,66 +835,118 @@ Optimum optimise(const std::vector<Prepared>& preps, const ParamSpace& space, co
     }
     const AnnealResult ar = anneal(f, x0, lo, hi, o.anneal);
     if (!ar.converged) warnings->push_back("annealing stopped at its evaluation limit before converging");
-    Optimum best;
-    best.u = ar.x;
-    best.cost = ar.f;
+    Search s;
+    s.best.u = ar.x;
+    s.best.cost = ar.f;
     if (o.polish_annealing) {
       *used += " + Ceres polish";
       Optimum pol = run_ceres(preps, space, o, ar.x, evals, true);
-      if (pol.cost <= best.cost) return pol;
+      if (pol.cost <= s.best.cost) {
+        s.best = pol;
+        return s;
+      }
     }
     // Jacobian at the annealing optimum, for the covariance.
     FitOptions one = o;
     one.max_iterations = 0;
-    Optimum jac = run_ceres(preps, space, one, best.u, evals, true);
-    jac.u = best.u;
-    jac.cost = best.cost;
-    return jac;
+    Optimum jac = run_ceres(preps, space, one, s.best.u, evals, true);
+    jac.u = s.best.u;
+    jac.cost = s.best.cost;
+    s.best = jac;
+    return s;
   }
 
-  *used = "ceres (Levenberg-Marquardt, multi-start)";
+  *used = "ceres (Levenberg-Marquardt, multi-start over spring orderings)";
   std::vector<std::pair<double, int>> ranked;
   for (size_t i = 0; i < cands.size(); ++i)
     ranked.push_back({cost_of(preps, space, o, space.to_mat(cands[i].data()), evals), static_cast<int>(i)});
-  // The explicit and data-driven starts always run; the rest by rank.
   std::vector<int> order;
-  // A given start with starts == 1 (a warm start, e.g. Model 5 from Model 4's
-  // optimum) runs alone; otherwise the data guess runs too.
-  const int fixed_starts = o.initial.k1_n_m > 0.0 && o.starts > 1 ? 2 : 1;
-  for (int i = 0; i < fixed_starts; ++i) order.push_back(i);
-  std::sort(ranked.begin(), ranked.end());
-  for (const auto& [c, i] : ranked) {
-    if (static_cast<int>(order.size()) >= std::max(o.starts, fixed_starts)) break;
-    if (i >= fixed_starts && std::isfinite(c)) order.push_back(i);
-  }
-  Optimum best;
-  int failed = 0;
-  for (int i : order) {
-    Optimum cur = run_ceres(preps, space, o, cands[i], evals, false);
-    if (!std::isfinite(cur.cost)) {
-      ++failed;
-      continue;
+  // A given start with starts == 1 (a warm start, e.g. Model 5 from Model
+  // 4's optimum) runs alone.
+  const bool warm_only = o.initial.k1_n_m > 0.0 && o.starts == 1;
+  if (warm_only) {
+    order.push_back(0);
+  } else {
+    std::sort(ranked.begin(), ranked.end());
+    std::vector<int> seen_orderings;
+    for (const auto& [c, i] : ranked) {  // the best of each ordering
+      if (!std::isfinite(c)) break;
+      const int ord = ordering_of(space, cands[i]);
+      if (std::find(seen_orderings.begin(), seen_orderings.end(), ord) != seen_orderings.end()) continue;
+      seen_orderings.push_back(ord);
+      order.push_back(i);
     }
-    if (cur.cost < best.cost) best = cur;
+    // and the best overall, up to `starts` runs beyond two (at least one
+    // run from every ordering whatever `starts` says).
+    for (const auto& [c, i] : ranked) {
+      if (static_cast<int>(order.size()) >= std::max(o.starts, static_cast<int>(seen_orderings.size()) + 2)) break;
+      if (std::isfinite(c) && std::find(order.begin(), order.end(), i) == order.end()) order.push_back(i);
+    }
+    if (o.initial.k1_n_m > 0.0 && std::find(order.begin(), order.end(), 0) == order.end()) order.push_back(0);
   }
-  if (!std::isfinite(best.cost)) throw Error("fit: every start failed (the simulation did not run)");
-  if (failed > 0) warnings->push_back(fmt::format("{} of {} starts failed", failed, order.size()));
+  // Two stages: a few iterations from every start, then to convergence
+  // from the ones that came within reach of the best (a basin whose start
+  // is still 3x worse than the best after the first stage is not followed:
+  // from a start inside the right basin Levenberg-Marquardt converges in a
+  // handful of iterations, while the far corners cost the most simulation).
+  std::vector<Optimum> runs(order.size());
+  auto in_parallel = [&](const std::vector<size_t>& which, const FitOptions& oo, bool from_runs) {
+    std::atomic<size_t> next{0};
+    auto worker = [&] {
+      for (size_t q; (q = next++) < which.size();) {
+        const size_t k = which[q];
+        const Eigen::VectorXd u0 = from_runs ? runs[k].u : cands[order[k]];
+        Optimum r = run_ceres(preps, space, oo, u0, evals, false, from_runs ? &runs[k].shifts : nullptr);
+        if (!from_runs || r.cost <= runs[k].cost) runs[k] = std::move(r);
+      }
+    };
+    const int threads = std::max(1, std::min<int>(o.threads, static_cast<int>(which.size())));
+    std::vector<std::thread> pool;
+    for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
+    worker();
+    for (auto& t : pool) t.join();
+  };
+  std::vector<size_t> all(order.size());
+  std::iota(all.begin(), all.end(), 0);
+  FitOptions first_stage = o;
+  first_stage.max_iterations = std::min(o.max_iterations, o.first_stage_iterations);
+  in_parallel(all, first_stage, false);
+  double lead = std::numeric_limits<double>::infinity();
+  for (const auto& r : runs) lead = std::min(lead, r.cost);
+  std::vector<size_t> follow;
+  for (size_t k = 0; k < runs.size(); ++k)
+    if (std::isfinite(runs[k].cost) && runs[k].cost <= o.follow_factor * lead) follow.push_back(k);
+  if (o.max_iterations > first_stage.max_iterations) in_parallel(follow, o, true);
+
+  Search s;
+  int failed = 0, best_k = -1;
+  for (size_t k = 0; k < runs.size(); ++k) {
+    if (!std::isfinite(runs[k].cost)) { ++failed; continue; }
+    if (best_k < 0 || runs[k].cost < runs[best_k].cost) best_k = static_cast<int>(k);
+  }
+  if (best_k < 0) throw Error("fit: every start failed (the simulation did not run)");
+  if (failed > 0) warnings->push_back(fmt::format("{} of {} starts failed", failed, runs.size()));
+  for (size_t k = 0; k < runs.size(); ++k)
+    if (static_cast<int>(k) != best_k && std::isfinite(runs[k].cost)) s.others.push_back(runs[k]);
   FitOptions one = o;
   one.max_iterations = 0;
-  Optimum jac = run_ceres(preps, space, one, best.u, evals, true);
-  jac.u = best.u;
-  jac.cost = best.cost;
-  return jac;
+  s.best = run_ceres(preps, space, one, runs[best_k].u, evals, true, &runs[best_k].shifts);
+  s.best.cost = runs[best_k].cost;
+  return s;
 }
 
 std::string param_display(const FreeParam& f) { return f.transform == Transform::Fraction ? "m1_kg" : f.name; }
 
-// Covariance from the Jacobian: standard errors and identifiability.
+// Covariance from the Jacobian (model parameters first, then the fitted
+// clock shifts): standard errors and identifiability of the parameters;
+// the shifts' standard errors go to `shift_se`.
 void covariance(const Optimum& opt, const ParamSpace& space, const FitOptions& o, const MatParams& mp,
-                std::vector<ParameterEstimate>* est, std::vector<std::string>* warnings) {
-  const int n = space.size();
+                std::vector<ParameterEstimate>* est, std::vector<double>* shift_se,
+                std::vector<std::string>* warnings) {
+  const int np = space.size();
   const Eigen::MatrixXd& J = opt.jacobian;
-  if (J.rows() <= n || J.cols() != n) {
+  const int n = static_cast<int>(J.cols());
+  if (J.rows() <= n || n < np) {
     warnings->push_back("covariance not available (too few residuals)");
     return;
   }
@@ -683,25 +967,31 @@ void covariance(const Optimum& opt, const ParamSpace& space, const FitOptions& o
     if (lam > 1e-14 * evmax) inv += es.eigenvectors().col(i) * es.eigenvectors().col(i).transpose() / lam;
   }
   Eigen::MatrixXd cov = s2 * colnorm.cwiseInverse().asDiagonal() * inv * colnorm.cwiseInverse().asDiagonal();
+  auto label = [&](int j) { return j < np ? param_display(space.free[j]) : fmt::format("clock shift {}", j - np + 1); };
   for (int i = 0; i < n; ++i) {
     const double lam = ev[i];
     if (lam < 1e-8 * evmax) {
       const Eigen::VectorXd v = es.eigenvectors().col(i);
       std::string dir;
       for (int j = 0; j < n; ++j)
-        if (std::abs(v[j]) > 0.3) dir += fmt::format("{}{:+.2f} {}", dir.empty() ? "" : " ", v[j], param_display(space.free[j]));
+        if (std::abs(v[j]) > 0.3) dir += fmt::format("{}{:+.2f} {}", dir.empty() ? "" : " ", v[j], label(j));
       warnings->push_back(fmt::format("near-singular direction (eigenvalue ratio {:.1e}): {}", lam / evmax, dir));
     }
   }
-  for (int j = 0; j < n; ++j) {
+  auto lost = [&](int j) {
+    for (int i = 0; i < n; ++i)
+      if (ev[i] <= 1e-14 * evmax && std::abs(es.eigenvectors()(j, i)) > 0.1) return true;
+    return false;
+  };
+  shift_se->clear();
+  for (int j = np; j < n; ++j)
+    shift_se->push_back(lost(j) ? std::numeric_limits<double>::infinity() : std::sqrt(std::max(cov(j, j), 0.0)));
+  for (int j = 0; j < np; ++j) {
     const FreeParam& f = space.free[j];
     ParameterEstimate& e = (*est)[j];
     double se_u = std::sqrt(std::max(cov(j, j), 0.0));
     // A direction dropped from the inverse: the parameter is unconstrained.
-    bool lost = false;
-    for (int i = 0; i < n; ++i)
-      if (ev[i] <= 1e-14 * evmax && std::abs(es.eigenvectors()(j, i)) > 0.1) lost = true;
-    if (lost) se_u = std::numeric_limits<double>::infinity();
+    if (lost(j)) se_u = std::numeric_limits<double>::infinity();
     if (f.transform == Transform::Log) {
       e.se = e.value * se_u;
       e.rel_se = se_u;
@@ -728,13 +1018,95 @@ void covariance(const Optimum& opt, const ParamSpace& space, const FitOptions& o
       e.identifiable = false;
     }
   }
-  for (int a = 0; a < n; ++a)
-    for (int b = a + 1; b < n; ++b) {
+  for (int a = 0; a < np; ++a)
+    for (int b = a + 1; b < np; ++b) {
       const double c = cov(a, b) / std::sqrt(std::max(cov(a, a) * cov(b, b), 1e-300));
       if (std::abs(c) > 0.995)
         warnings->push_back(fmt::format("{} and {} are correlated (r = {:.3f})", param_display(space.free[a]),
                                         param_display(space.free[b]), c));
     }
+}
+
+// Other basins that fit within noise of the best: reported, and the
+// parameters that differ between them marked not identifiable.
+void alternatives(const Search& s, const ParamSpace& space, const FitOptions& o, FitResult* res) {
+  const double m = static_cast<double>(s.best.residuals.size());
+  const int p = space.size();
+  if (!(m > p)) return;
+  const double s2 = std::max(2.0 * s.best.cost / (m - p), 1.0);  // residual variance in noise units (>= 1)
+  const double limit = o.basin_tolerance * chi2_quantile_95(p);
+  std::vector<Eigen::VectorXd> kept = {s.best.u};
+  std::vector<Optimum> sorted = s.others;
+  std::sort(sorted.begin(), sorted.end(), [](const Optimum& a, const Optimum& b) { return a.cost < b.cost; });
+  for (const auto& other : sorted) {
+    const double d = 2.0 * (other.cost - s.best.cost) / s2;
+    if (d > limit) break;
+    bool distinct = true;
+    for (const auto& u : kept)
+      if ((other.u - u).cwiseAbs().maxCoeff() < 0.2) distinct = false;  // the same basin (20 % in log)
+    if (!distinct) continue;
+    kept.push_back(other.u);
+    Alternative a;
+    a.params = space.to_mat(other.u.data());
+    a.cost = other.cost;
+    a.delta_chi2 = d;
+    res->alternatives.push_back(a);
+    std::vector<std::string> differ;
+    for (int j = 0; j < p; ++j) {
+      if (std::abs(other.u[j] - s.best.u[j]) < 0.2) continue;
+      differ.push_back(param_display(space.free[j]));
+      for (auto& e : res->estimates)
+        if (e.name == param_display(space.free[j])) e.identifiable = false;
+    }
+    std::string alt;
+    for (int j = 0; j < p; ++j)
+      alt += fmt::format("{}{} {:.4g}", alt.empty() ? "" : ", ", param_display(space.free[j]),
+                         space.value_of(space.free[j], other.u[j]));
+    res->warnings.push_back(fmt::format(
+        "not identifiable: another basin fits within noise (delta chi-square {:.2g} <= {:.3g}): {}; differing: {}", d,
+        limit, alt, fmt::join(differ, ", ")));
+  }
+}
+
+// Each channel's share of the cost at the optimum.
+std::vector<ChannelShare> channel_shares(const std::vector<Prepared>& preps, const Eigen::VectorXd& r,
+                                         std::vector<std::string>* warnings) {
+  ChannelShare ch[2];
+  ch[0].name = "force";
+  ch[1].name = "impactor";
+  double ss[2] = {0, 0}, lag[2] = {0, 0}, lag_n[2] = {0, 0};
+  int off = 0;
+  for (const auto& p : preps) {
+    const int nf = static_cast<int>(p.f_idx.size()), nk = static_cast<int>(p.k_idx.size());
+    for (int c = 0; c < 2; ++c) {
+      const int a = off + (c == 0 ? 0 : nf), len = c == 0 ? nf : nk;
+      for (int i = 0; i < len && a + i < r.size(); ++i) {
+        ss[c] += r[a + i] * r[a + i];
+        ++ch[c].n;
+        if (i > 0) { lag[c] += r[a + i] * r[a + i - 1]; lag_n[c] += 1; }
+      }
+    }
+    off += nf + nk;
+  }
+  const double total = ss[0] + ss[1];
+  std::vector<ChannelShare> out;
+  for (int c = 0; c < 2; ++c) {
+    if (ch[c].n == 0) continue;
+    ch[c].share = total > 0.0 ? ss[c] / total : 0.0;
+    ch[c].rms_sigma = std::sqrt(ss[c] / ch[c].n);
+    ch[c].lag1_autocorrelation = ss[c] > 0.0 && lag_n[c] > 0 ? (lag[c] / lag_n[c]) / (ss[c] / ch[c].n) : 0.0;
+    ch[c].structured = ch[c].rms_sigma > 2.0 && ch[c].lag1_autocorrelation > 0.5;
+    out.push_back(ch[c]);
+  }
+  if (out.size() == 2 && out[0].structured != out[1].structured) {
+    const ChannelShare& s = out[0].structured ? out[0] : out[1];
+    const ChannelShare& q = out[0].structured ? out[1] : out[0];
+    warnings->push_back(fmt::format(
+        "{} carries structured residual ({:.1f} noise SDs RMS, lag-1 autocorrelation {:.2f}) that {} does not "
+        "({:.1f} SDs): the model misses something that channel sees",
+        s.name, s.rms_sigma, s.lag1_autocorrelation, q.name, q.rms_sigma));
+  }
+  return out;
 }
 
 std::vector<const TrialData*> choose_train(const std::vector<TrialData>& trials, const std::vector<std::string>& ids) {
@@ -765,23 +1137,32 @@ void check_options(const FitOptions& o) {
     throw Error("fit: force_noise_n and marker_noise_m must be positive");
   if (!(o.m1_kg >= 0.0) || !(o.m2_kg >= 0.0)) throw Error("fit: layer masses must be >= 0");
   if (o.starts < 1) throw Error("fit: starts must be at least 1");
+  if (!(o.contact_shift_min_s <= 0.0) || !(o.contact_shift_max_s >= 0.0) || !(o.contact_search_s >= 0.0) ||
+      !(o.contact_search_s >= -o.contact_shift_min_s))
+    throw Error("fit: contact_shift_min_s must be <= 0, contact_shift_max_s >= 0 and contact_search_s >= "
+                "-contact_shift_min_s");
+  if (o.oversample < 1 || o.oversample > 64) throw Error("fit: oversample must be in [1, 64]");
+  if (!(o.k_min_n_m > 0.0) || !(o.k_max_n_m > o.k_min_n_m) || !(o.r_min_n_s_m > 0.0) ||
+      !(o.r_max_n_s_m > o.r_min_n_s_m))
+    throw Error("fit: stiffness and damping bounds must be positive and increasing");
 }
 
 struct FitCore {
   MatParams params;
-  Optimum opt;
+  Search search;
   ParamSpace space;
+  std::vector<Prepared> preps;
   std::string used;
 };
 
-FitCore fit_core(const std::vector<const TrialData*>& train, const FitOptions& o, long* evals,
+FitCore fit_core(const std::vector<const TrialData*>& train, const FitOptions& o, std::atomic<long>* evals,
                  std::vector<std::string>* warnings) {
   FitCore fc;
-  fc.space = make_space(o);
-  std::vector<Prepared> preps;
-  for (const TrialData* t : train) preps.push_back(prepare(*t, o));
-  fc.opt = optimise(preps, fc.space, o, evals, warnings, &fc.used);
-  fc.params = fc.space.to_mat(fc.opt.u.data());
+  for (const TrialData* t : train) fc.preps.push_back(prepare(*t, o));
+  const double k_eff = effective_stiffness(fc.preps);
+  fc.space = make_space(o, k_eff);
+  fc.search = optimise(fc.preps, fc.space, o, k_eff, evals, warnings, &fc.used);
+  fc.params = fc.space.to_mat(fc.search.best.u.data());
   return fc;
 }
 
@@ -795,54 +1176,88 @@ double sim_peak(const FitOptions& o, const MatParams& mp, const Impact& imp) {
 // ---------------------------------------------------------------------------
 
 TrialReport predict(const TrialData& trial, const MatParams& params, const FitOptions& options) {
-  const Prepared p = prepare(trial, options);
+  const Prepared p = prepare(trial, options, true);
   TrialReport rep;
   rep.id = trial.id;
   rep.impact_velocity_m_s = trial.impact_velocity_m_s;
   rep.window_end_s = p.window_end_s;
-  Impact imp = p.impact;
-  rep.simulation = options.simulator ? options.simulator(params, imp) : simulate(options.model, params, imp);
-  // The series on the trial's own samples (a custom simulator interpolated).
-  const ParamSpace space = make_space(options);
+  const ParamSpace space = make_space(options, kNaN);
   const detail::Trace<double> s = simulate_window(p, space, options, params, nullptr);
-  const int n = p.n_win;
-  Eigen::VectorXd t(n), fm(n), fs(n);
-  for (int w = 0; w < n; ++w) {
-    t[w] = trial.t_s[p.i0 + w];
-    fm[w] = trial.grf_n[p.i0 + w];
-    fs[w] = s.grf[p.k0 + w];
+  const double shift = profile_shift(p, s.grf);
+  rep.contact_shift_s = shift;
+  if (p.shifted()) {
+    // Conditional standard error of the shift: residual variance over the
+    // squared derivative of the force residuals.
+    using J1 = ceres::Jet<double, 1>;
+    double jj = 0.0, rss = 0.0;
+    for (size_t k = 0; k < p.f_idx.size(); ++k) {
+      const int i = p.f_idx[k];
+      const J1 f = on_grid(s.grf, J1(trial.t_s[i]) - J1(shift, 0), p.h, 0.0);
+      const double d = (f.a - trial.grf_n[i]) * p.f_w[k];
+      rss += d * d;
+      jj += (f.v[0] * p.f_w[k]) * (f.v[0] * p.f_w[k]);
+    }
+    const double dof = std::max<double>(static_cast<double>(p.f_idx.size()) - 1.0, 1.0);
+    if (jj > 0.0) rep.contact_shift_se_s = std::sqrt(rss / dof / jj);
   }
+
+  // The simulation on the trial's own samples: force on the shifted clock,
+  // travel on the video's (free fall before contact).
+  const Eigen::Index n = trial.t_s.size();
+  Simulation& sim = rep.simulation;
+  sim.t_s = trial.t_s;
+  sim.grf_n.resize(n);
+  sim.impactor_m.resize(n);
+  sim.surface_m.resize(n);
+  sim.layer1_m.resize(n);
+  sim.layer2_m.resize(n);
+  const double v0 = trial.impact_velocity_m_s, g = trial.gravity_m_s2;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const double t = trial.t_s[i];
+    sim.grf_n[i] = on_grid(s.grf, t - shift, p.h, 0.0);
+    sim.impactor_m[i] = t < 0.0 ? v0 * t + 0.5 * g * t * t : on_grid(s.impactor, t, p.h, 0.0);
+    sim.surface_m[i] = t < 0.0 ? 0.0 : on_grid(s.surface, t, p.h, 0.0);
+    sim.layer1_m[i] = t < 0.0 ? 0.0 : on_grid(s.layer1, t, p.h, 0.0);
+    sim.layer2_m[i] = t < 0.0 ? 0.0 : on_grid(s.layer2, t, p.h, 0.0);
+  }
+
+  // Force compared from the fitted contact on, over the window.
+  std::vector<double> tv, fmv, fsv;
+  for (int i : p.f_idx) {
+    const double tc = trial.t_s[i] - shift;
+    if (tc < 0.0) continue;
+    tv.push_back(tc);
+    fmv.push_back(trial.grf_n[i]);
+    fsv.push_back(sim.grf_n[i]);
+  }
+  const Eigen::Index nw = static_cast<Eigen::Index>(tv.size());
+  const Eigen::VectorXd t = Eigen::Map<Eigen::VectorXd>(tv.data(), nw);
+  const Eigen::VectorXd fm = Eigen::Map<Eigen::VectorXd>(fmv.data(), nw);
+  const Eigen::VectorXd fs = Eigen::Map<Eigen::VectorXd>(fsv.data(), nw);
   rep.comparison = compare_forces(t, fm, fs);
-  Eigen::VectorXd fm_clean = fm;
-  for (int w = 0; w < n; ++w)
-    if (!std::isfinite(fm_clean[w])) fm_clean[w] = w > 0 ? fm_clean[w - 1] : 0.0;
-  if (n >= 3) {
-    rep.measured = characteristics(t, fm_clean, options.characteristics);
+  if (nw >= 3) {
+    rep.measured = characteristics(t, fm, options.characteristics);
     rep.simulated = characteristics(t, fs, options.characteristics);
   }
-  if (trial.impactor_m.size() == trial.t_s.size()) {
+  if (!p.k_idx.empty()) {
     double mm = -1e300, ms = -1e300, ss = 0.0;
-    int cnt = 0;
-    for (int w = 0; w < n; ++w) {
-      const double y = trial.impactor_m[p.i0 + w];
-      if (!std::isfinite(y)) continue;
+    for (int i : p.k_idx) {
+      const double y = trial.impactor_m[i];
       mm = std::max(mm, y);
-      const double d = s.impactor[p.k0 + w] - y;
+      const double d = sim.impactor_m[i] - y;
       ss += d * d;
-      ++cnt;
     }
-    for (int w = 0; w < n; ++w) ms = std::max(ms, s.impactor[p.k0 + w]);
-    if (cnt > 0) {
-      rep.max_deformation_mm_diff = 1000.0 * (ms - mm);
-      rep.rms_impactor_mm = 1000.0 * std::sqrt(ss / cnt);
-    }
+    for (Eigen::Index i = 0; i < n; ++i)
+      if (trial.t_s[i] >= 0.0 && trial.t_s[i] <= p.window_end_s) ms = std::max(ms, sim.impactor_m[i]);
+    rep.max_deformation_mm_diff = 1000.0 * (ms - mm);
+    rep.rms_impactor_mm = 1000.0 * std::sqrt(ss / static_cast<double>(p.k_idx.size()));
   }
   return rep;
 }
 
 Eigen::VectorXd residuals(const std::vector<TrialData>& trials, const MatParams& params, const FitOptions& options) {
   check_options(options);
-  const ParamSpace space = make_space(options);
+  const ParamSpace space = make_space(options, kNaN);
   std::vector<Prepared> preps;
   for (const auto& t : trials) preps.push_back(prepare(t, options));
   return residual_vector(preps, space, options, params, nullptr);
@@ -857,11 +1272,13 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
   const auto train = choose_train(trials, options.train_ids);
   for (const TrialData* t : train) res.train_ids.push_back(t->id);
 
-  FitCore fc = fit_core(train, options, &res.evaluations, &res.warnings);
+  std::atomic<long> evals{0};
+  FitCore fc = fit_core(train, options, &evals, &res.warnings);
+  const Optimum& best = fc.search.best;
   res.params = fc.params;
   res.optimizer = fc.used;
-  res.cost = fc.opt.cost;
-  res.n_residuals = static_cast<int>(fc.opt.residuals.size());
+  res.cost = best.cost;
+  res.n_residuals = static_cast<int>(best.residuals.size());
 
   // Estimates (free parameters, then the fixed ones for completeness).
   for (const auto& f : fc.space.free) {
@@ -870,7 +1287,10 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
     e.value = f.transform == Transform::Fraction ? res.params.m1_kg : get_parameter(res.params, f.name);
     res.estimates.push_back(e);
   }
-  covariance(fc.opt, fc.space, options, res.params, &res.estimates, &res.warnings);
+  std::vector<double> shift_se;
+  covariance(best, fc.space, options, res.params, &res.estimates, &shift_se, &res.warnings);
+  alternatives(fc.search, fc.space, options, &res);
+  res.channels = channel_shares(fc.preps, best.residuals, &res.warnings);
   {
     const ModelKind shape = options.model == ModelKind::Model5 ? ModelKind::Model4 : options.model;
     for (const auto& name : parameter_names(shape, true)) {
@@ -898,12 +1318,25 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
   for (const auto& t : trials) {
     TrialReport rep = predict(t, res.params, options);
     rep.train = std::find(res.train_ids.begin(), res.train_ids.end(), t.id) != res.train_ids.end();
+    if (rep.train) {
+      // The training trials' shifts come from the joint optimum, with the
+      // joint (unconditional) standard error.
+      size_t k = 0, b = 0;
+      for (; k < fc.preps.size(); ++k) {
+        if (fc.preps[k].data->id == t.id) break;
+        if (fc.preps[k].shifted()) ++b;
+      }
+      if (k < fc.preps.size() && fc.preps[k].shifted()) {
+        rep.contact_shift_s = best.shifts[k];
+        if (b < shift_se.size()) rep.contact_shift_se_s = shift_se[b];
+      }
+    }
     res.trials.push_back(std::move(rep));
   }
 
   if (options.sensitivity) {
-    const Prepared p = prepare(*train.front(), options);
-    Impact imp = p.impact;
+    Impact imp = fc.preps.front().impact;
+    imp.output_dt_s = fc.preps.front().dt;
     imp.duration_s = std::max(imp.duration_s, 0.3);
     const double base = sim_peak(options, res.params, imp);
     const ModelKind shape = options.model == ModelKind::Model5 ? ModelKind::Model4 : options.model;
@@ -934,7 +1367,7 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
         FitOptions o = options;
         o.initial = res.params;  // start near the full fit; multi-start still runs
         std::vector<std::string> w;
-        FitCore c = fit_core(tr, o, &res.evaluations, &w);
+        FitCore c = fit_core(tr, o, &evals, &w);
         LeaveOneOutEntry e;
         e.held_out = held->id;
         e.params = c.params;
@@ -943,6 +1376,7 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
       }
     }
   }
+  res.evaluations = evals.load();
   res.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   return res;
 }
@@ -974,6 +1408,16 @@ std::string FitResult::report() const {
       os << fmt::format("  {:<10} {:+7.2f} %  rms {:.2f} % peak\n", l.held_out, l.comparison.peak_force_pct_diff,
                         l.comparison.rms_force_pct_peak);
   }
+  if (!channels.empty()) {
+    os << "channels at the optimum (share of cost, RMS in noise SDs, lag-1 autocorrelation):\n";
+    for (const auto& c : channels)
+      os << fmt::format("  {:<10} {:5.1f} %  {:6.2f}  {:+.2f}{}\n", c.name, 100.0 * c.share, c.rms_sigma,
+                        c.lag1_autocorrelation, c.structured ? "  structured" : "");
+  }
+  for (const auto& t : trials)
+    if (std::isfinite(t.contact_shift_se_s))
+      os << fmt::format("  {:<10} contact {:+.3f} ms from its estimate (SE {:.3f} ms)\n", t.id, 1e3 * t.contact_shift_s,
+                        1e3 * t.contact_shift_se_s);
   for (const auto& w : warnings) os << "warning: " << w << "\n";
   return os.str();
 }

@@ -1,29 +1,53 @@
 #pragma once
 // Fitting the mat models (fitting/models.h) to drop-test trials, as Mills,
-// Pain & Yeadon (2006) did and a little further:
+// Pain & Yeadon (2006) did and a little further.
 //
-// Objective (least squares over every training trial's contact window):
-//   force:    w_t (F_sim - F_meas) / force_noise_n,   w_t = loading_weight
-//             up to the measured peak, 1 after it;
-//   impactor: kinematics_weight (y_sim - y_meas) / marker_noise_m wherever
-//             the impactor's face travel was measured (NaN = gap);
-//   surface:  the paper's penalty: surface_weight max(|s_sim - s_meas| -
-//             surface_tolerance_m, 0) / marker_noise_m (zero inside the 1 cm
-//             band), or, with surface_as_residual, a plain residual like the
-//             impactor's. The simulated surface is Simulation::surface_m.
-// Force alone does not identify Models 3-4 (the springs in series trade
-// places), which is why the impactor's travel is in by default; the result
-// lists the parameters the data still do not pin down.
+// Objective: a likelihood over what the instruments measure, each channel
+// over its own measured noise (least squares over every training trial's
+// contact window):
+//   force:    (F_sim(t - dt_c) - F_meas(t)) / force_noise_n   at every plate
+//             sample from contact_search_s before the trial's contact
+//             estimate to the contact's end (+ window_margin_s);
+//   impactor: (y_sim(t) - y_meas(t)) / marker_noise_m   wherever the
+//             impactor's face travel was measured (NaN = gap), t >= 0.
+// Clocks: t is the plate's clock shifted so that t = 0 is the trial's
+// contact estimate; the impactor's travel is placed there by the video's own
+// contact instant (the free fall reaching the mat top), so its model time is
+// t itself. The plate's force onset on a layered mat lags the contact (the
+// mat's masses accelerate first), so each trial's contact instant on the
+// force clock, dt_c, is a fitted parameter, started at 0 and bounded by
+// physics: the plate cannot read the mat's force before the contact (up to
+// the onset detector's own error, contact_shift_max_s) and the layers delay
+// it by at most contact_shift_min_s; the video-force clock offset follows as
+// offset_estimate - dt_c (TrialReport::contact_shift_s and its SE).
+// The mat-surface markers are NOT in the objective: they sit beside the
+// footprint and see the top layer through an unknown dish factor (a few
+// millimetres while the face travels 100), never the face itself.
+// Noise: TrialData carries each trial's measured noise (plate: the quiet
+// pre-trigger SD; markers: the free-fall fit's RMS); FitOptions' values are
+// the fallback. Each channel's share of the cost at the optimum is reported,
+// with a warning when one channel carries structured residual the others do
+// not.
 //
-// Parameters: stiffness and damping are fitted as logarithms (bounded); the
-// layer masses are fixed to the manifest, or free with their total fixed
-// (fitted as the top layer's fraction, as the paper's re-optimisation);
-// Model 2's m_eff is free in [0, total layer mass] unless fixed.
-// Optimisers: Ceres (Levenberg-Marquardt, automatic differentiation through
-// the templated simulation, multi-start from quasi-random points in
-// physically sensible ranges) or simulated annealing (Corana et al. 1987,
-// fitting/anneal.h) on the same objective. Model 5 (or any model given as a
-// simulate callback) is fitted with central numeric differences.
+// Parameters: stiffness and damping are fitted as logarithms, bounded by
+// physics: each series spring is at least a fraction of the effective
+// stiffness F_peak / travel_max measured on the training trials and at most
+// a multiple of it beyond which it is rigid for this mat; damping between
+// ~0 and several times critical. Layer masses are fixed to the manifest, or
+// free with their total fixed (fitted as the top layer's fraction, as the
+// paper's re-optimisation); Model 2's m_eff is free in [0, total layer mass]
+// unless fixed.
+// Search: quasi-random starts spanning the bounds in log space plus, for the
+// chains (Models 3-5), every ordering of the series springs (soft, medium,
+// stiff); all starts are screened by cost, and Levenberg-Marquardt (Ceres,
+// automatic differentiation through the templated simulation) runs from the
+// best start of every ordering and the best overall, spread over threads.
+// Distinct optima that fit within noise of the best are reported
+// (FitResult::alternatives) and the parameters that differ between them are
+// marked not identifiable instead of silently picking one. Simulated
+// annealing (Corana et al. 1987, fitting/anneal.h) runs on the same
+// objective with the contact shifts profiled out. Model 5 (or any model given
+// as a simulate callback) is fitted with central numeric differences.
 //
 // Uncertainty: J^T J at the optimum, inverted and scaled by the residual
 // variance (RSS / (N - p)); standard errors of log-parameters are relative
@@ -31,9 +55,10 @@
 // optimistic; held-out trials are the stronger test.
 //
 // Validation: the fitted parameters predict every trial from its own
-// impact velocity; key characteristics (fitting/characteristics.h) for
-// measured and simulated curves; optional leave-one-trial-out; sensitivity
-// of the peak force to +-10 % on each stiffness and damping.
+// impact velocity (only its clock shift is fitted); key characteristics
+// (fitting/characteristics.h) for measured and simulated curves; optional
+// leave-one-trial-out; sensitivity of the peak force to +-10 % on each
+// stiffness and damping.
 //
 // Table mode: when only per-trial summaries exist (velocity, maximum
 // deformation, peak force: the paper's Table 1), fit_table matches the
@@ -50,9 +75,10 @@
 
 namespace dropfit::fitting {
 
-// One trial as the fitter needs it. Times from first contact, uniformly
-// spaced (the force plate's clock); samples before contact (t < 0) are
-// ignored.
+// One trial as the fitter needs it. Times uniformly spaced (the force
+// plate's clock), t = 0 at the trial's contact estimate (the video's contact
+// instant placed on the force clock); samples before contact_search_s ahead
+// of it are ignored.
 struct TrialData {
   std::string id;
   bool accepted = true;
@@ -61,8 +87,11 @@ struct TrialData {
   double gravity_m_s2 = 9.81;
   Eigen::VectorXd t_s;
   Eigen::VectorXd grf_n;             // measured ground reaction force (zeroed plate)
-  Eigen::VectorXd impactor_m;        // optional: impactor face travel below first contact, NaN gaps
-  Eigen::VectorXd surface_m;         // optional: mat top-surface travel, NaN gaps
+  Eigen::VectorXd impactor_m;        // optional: impactor face travel below the mat top (video), NaN gaps
+  Eigen::VectorXd surface_m;         // optional: mat-surface marker travel (reported, not fitted), NaN gaps
+  // Measured noise of each channel (NaN: FitOptions' fallback).
+  double force_noise_n = std::numeric_limits<double>::quiet_NaN();   // plate Fz SD, quiet pre-trigger
+  double marker_noise_m = std::numeric_limits<double>::quiet_NaN();  // face height SD, free-fall fit
 };
 
 // A custom simulator (Model 5, or a user's own); the fitter asks it for the
@@ -87,13 +116,17 @@ struct FitOptions {
   std::vector<std::string> free_effects;  // effect parameters to fit ("k1_cubic_n_m3", ...)
 
   // Objective.
-  double force_noise_n = 20.0;
+  double force_noise_n = 20.0;         // fallbacks when a trial carries no measured noise
   double marker_noise_m = 0.0005;
+  double min_force_noise_n = 0.5;      // floors on measured noise (a quantised or noiseless record)
+  double min_marker_noise_m = 1e-4;
   double loading_weight = 1.0;         // extra weight on force samples up to the measured peak
   double kinematics_weight = 1.0;      // impactor travel residuals (0 = force only)
-  double surface_weight = 1.0;
-  double surface_tolerance_m = 0.01;
-  bool surface_as_residual = false;
+  bool fit_contact_time = true;        // each trial's contact instant on the force clock is fitted
+  double contact_shift_min_s = -0.002;  // dt_c in [min, max]: the plate's onset lags the contact by
+  double contact_shift_max_s = 0.0005;  //   up to 2 ms, and its detector may read up to 0.5 ms early
+  double contact_search_s = 0.004;     // force samples this long before t = 0 are in the window
+  int oversample = 2;                  // simulated samples per plate sample (for the clock shift)
   double contact_threshold_n = 25.0;   // the contact ends when the measured force stays below this
   double window_margin_s = 0.01;       // fitted past the measured contact's end
   double window_end_s = -1.0;          // > 0: fixed window end instead
@@ -107,9 +140,17 @@ struct FitOptions {
   bool polish_annealing = false;       // finish annealing with Ceres
   MatParams initial;                   // if k1_n_m > 0: an extra start (the first)
 
-  // Ranges the starts are drawn from (and the bounds, 10x wider).
-  double k_min_n_m = 2e4, k_max_n_m = 3e6;
-  double r_min_n_s_m = 30.0, r_max_n_s_m = 3e3;
+  // Bounds (log space). Stiffness: absolute limits, narrowed by physics
+  // around the effective stiffness k_eff = F_peak / travel_max of the
+  // training data when it is measured: [k_eff_lower_ratio, k_eff_upper_ratio]
+  // times k_eff. Damping: absolute limits.
+  double k_min_n_m = 2e3, k_max_n_m = 3e7;
+  double k_eff_lower_ratio = 0.3, k_eff_upper_ratio = 1000.0;
+  double r_min_n_s_m = 3.0, r_max_n_s_m = 3e4;
+  int threads = 2;                     // Levenberg-Marquardt runs in parallel
+  int first_stage_iterations = 12;     // every start runs this many iterations first;
+  double follow_factor = 3.0;          //   those within this factor of the best cost go on
+  double basin_tolerance = 1.0;        // alternatives within this many chi-square(p, 95 %) units
 
   // Validation.
   bool leave_one_out = false;
@@ -131,12 +172,31 @@ struct TrialReport {
   std::string id;
   bool train = false;
   double impact_velocity_m_s = 0.0;
+  double contact_shift_s = 0.0;     // fitted contact instant on the force clock minus the estimate
+  double contact_shift_se_s = std::numeric_limits<double>::quiet_NaN();
   Characteristics measured, simulated;
   ForceComparison comparison;                // over the trial's contact window
   double max_deformation_mm_diff = std::numeric_limits<double>::quiet_NaN();  // impactor travel
   double rms_impactor_mm = std::numeric_limits<double>::quiet_NaN();
   double window_end_s = 0.0;
-  Simulation simulation;                     // on the trial's samples from contact
+  Simulation simulation;                     // on the trial's own samples (t_s), force shifted by the fit
+};
+
+// One measured channel's part of the cost at the optimum.
+struct ChannelShare {
+  std::string name;          // "force", "impactor"
+  int n = 0;                 // residuals
+  double share = 0.0;        // of the total cost
+  double rms_sigma = 0.0;    // RMS residual in units of the channel's noise
+  double lag1_autocorrelation = 0.0;  // of its residuals, within trials (1 = smooth structure)
+  bool structured = false;   // rms_sigma > 2 and autocorrelation > 0.5
+};
+
+// Another optimum that fits within noise of the best.
+struct Alternative {
+  MatParams params;
+  double cost = 0.0;
+  double delta_chi2 = 0.0;   // 2 (cost - best) / residual variance
 };
 
 struct SensitivityEntry {
@@ -159,6 +219,8 @@ struct FitResult {
   std::vector<TrialReport> trials;
   std::vector<SensitivityEntry> sensitivity;
   std::vector<LeaveOneOutEntry> leave_one_out;
+  std::vector<ChannelShare> channels;
+  std::vector<Alternative> alternatives;  // other basins within noise (not identifiable)
   std::vector<std::string> warnings;  // parameters not identifiable, failed starts, ...
   double cost = 0.0;                  // 0.5 * sum of squared residuals at the optimum
   int n_residuals = 0;
@@ -173,11 +235,13 @@ struct FitResult {
 // missing samples, Model 5 without a simulator).
 FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options);
 
-// Predicts one trial from parameters (its own velocity), with the report.
+// Predicts one trial from parameters (its own velocity), with the report;
+// only the trial's clock shift is fitted (when options.fit_contact_time).
 TrialReport predict(const TrialData& trial, const MatParams& params, const FitOptions& options);
 
 // The objective's building blocks, public for tests and diagnosis: the
-// residual vector of `params` on `trials` (as the optimiser sees it).
+// residual vector of `params` on `trials` (as the optimiser sees it, each
+// trial's clock shift profiled out when options.fit_contact_time).
 Eigen::VectorXd residuals(const std::vector<TrialData>& trials, const MatParams& params,
                           const FitOptions& options);
 

@@ -187,6 +187,8 @@ std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg) {
                       {"time_to_peak_ms_diff", number_or_null(t.comparison.time_to_peak_ms_diff)},
                       {"max_deformation_mm_diff", number_or_null(t.max_deformation_mm_diff)},
                       {"rms_impactor_mm", number_or_null(t.rms_impactor_mm)},
+                      {"contact_shift_s", t.contact_shift_s},
+                      {"contact_shift_se_s", number_or_null(t.contact_shift_se_s)},
                       {"measured", characteristics_json(t.measured)},
                       {"simulated", characteristics_json(t.simulated)}});
   }
@@ -203,6 +205,21 @@ std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg) {
                    {"rms_force_pct_peak", number_or_null(l.comparison.rms_force_pct_peak)},
                    {"peak_force_pct_diff", number_or_null(l.comparison.peak_force_pct_diff)}});
   }
+  json channels = json::array();
+  for (const auto& c : fit.channels) {
+    channels.push_back({{"name", c.name},
+                        {"residuals", c.n},
+                        {"cost_share", c.share},
+                        {"rms_noise_sd", c.rms_sigma},
+                        {"lag1_autocorrelation", c.lag1_autocorrelation},
+                        {"structured", c.structured}});
+  }
+  json alternatives = json::array();
+  for (const auto& a : fit.alternatives) {
+    json p = json::object();
+    for (const auto& [name, value] : named_parameters(fit.model, a.params)) p[name] = value;
+    alternatives.push_back({{"parameters", p}, {"cost", a.cost}, {"delta_chi2", a.delta_chi2}});
+  }
   json doc = {{"model", fitting::model_name(fit.model)},
               {"train", fit.train_ids},
               {"impactor_mass_kg", impactor_mass_kg},
@@ -211,6 +228,9 @@ std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg) {
               {"trials", trials},
               {"sensitivity", sensitivity},
               {"leave_one_out", loo},
+              {"channels", channels},
+              {"identifiable", fit.alternatives.empty()},
+              {"alternatives", alternatives},
               {"warnings", fit.warnings},
               {"optimizer", fit.optimizer},
               {"evaluations", fit.evaluations},

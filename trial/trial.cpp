@@ -231,6 +231,7 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
 
   if (force) {
     res.contact_time_s = force->contact_time_s;
+    res.force_noise_n = force->noise_n;
     res.peak_force_n = force->peak_fz_n;
     res.time_to_peak_s = force->time_to_peak_s;
     res.end_time_s = force->end_time_s;

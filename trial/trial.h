@@ -164,6 +164,7 @@ struct TrialResult {
   double freefall_rms_m = std::numeric_limits<double>::quiet_NaN();
   int freefall_frames = 0;
   double impulse_ratio = std::numeric_limits<double>::quiet_NaN();
+  double force_noise_n = std::numeric_limits<double>::quiet_NaN();  // Fz SD in the quiet pre-trigger part
   Series series;
 
   std::string report() const;
