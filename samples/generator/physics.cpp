@@ -117,17 +117,26 @@ struct Chain {
       if (target >= 0.0) return r_load > 0.0 ? target / r_load : 0.0;
       return r_unload > 0.0 ? target / r_unload : 0.0;
     }
-    // F1 grows with d' (for d >= 0): bracket and bisect.
+    // F1 grows with d' (for d >= 0): Newton's method kept inside a bracket
+    // (bisection when a Newton step would leave it).
     auto f = [&](double dd) { return element1_force_n(p, d, dd, fm); };
+    const double elastic = p.k1_n_m * d + p.k1_cubic_n_m3 * d * d * d, vt = p.hysteresis_transition_m_s;
     double lo = -1.0, hi = 1.0;
     for (int i = 0; i < 60 && f(lo) > 0.0; ++i) lo *= 2.0;
     for (int i = 0; i < 60 && f(hi) < 0.0; ++i) hi *= 2.0;
     if (f(lo) > 0.0 || f(hi) < 0.0) return 0.0;
-    for (int i = 0; i < 100 && hi - lo > 1e-13 * (1.0 + std::abs(hi)); ++i) {
-      const double mid = 0.5 * (lo + hi);
-      (f(mid) > 0.0 ? hi : lo) = mid;
+    double x = std::clamp(target / std::max(r_load, 1e-9), lo, hi);
+    for (int i = 0; i < 100; ++i) {
+      const double fx = f(x);
+      if (fx > 0.0) hi = x; else lo = x;
+      const double sech = 1.0 / std::cosh(x / vt);
+      const double slope = elastic * p.k1_hysteresis * sech * sech / (2.0 * vt) + (x < 0.0 ? r_unload : r_load);
+      double next = slope > 0.0 ? x - fx / slope : 0.5 * (lo + hi);
+      if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
+      if (std::abs(next - x) <= 1e-14 * (1.0 + std::abs(x)) || hi - lo <= 1e-14 * (1.0 + std::abs(x))) return next;
+      x = next;
     }
-    return 0.5 * (lo + hi);
+    return x;
   }
 
   struct Eval {
