@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "capture/io.h"
+#include "fitting/models.h"  // fitting::ModelKind, MatParams (synth.h no longer includes fitting/)
 #include "samples/generator/synth.h"
 #include "support/cli_harness.h"
 

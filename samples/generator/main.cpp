@@ -1,14 +1,17 @@
 // dropfit-synth: writes a synthetic drop-test session with known truth.
 //
-//   dropfit-synth --out SESSION_DIR --truth FILE [--seed N] [--model 1..5]
-//                 [--effect name=magnitude ...] [--frames N --samples N]
+//   dropfit-synth --out SESSION_DIR --truth FILE [--world lab|independent|classic]
+//                 [--seed N] [--model 1..4] [--effect name=magnitude ...]
+//                 [--random-effects] [... every option of SynthOptions: --help]
 //
 // The session folder follows shared/spec/session-format.md (written by
 // capture::write_session); the truth JSON goes elsewhere (keep it out of
 // the session folder: nothing in there may reveal the injected effects).
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
+#include <cstdint>
 #include <exception>
 #include <filesystem>
 #include <string>
@@ -61,44 +64,176 @@ dropfit::synth::Gap parse_gap(const std::string& text) {
   }
 }
 
+// The value following `name` in argv (the preset must exist before the
+// other options are bound to its fields), or empty.
+std::string prescan(int argc, char** argv, const std::string& name) {
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == name && i + 1 < argc) return argv[i + 1];
+    if (a.rfind(name + "=", 0) == 0) return a.substr(name.size() + 1);
+  }
+  return {};
+}
+
+// "name=value" for a mat parameter (k1_n_m, r2_n_s_m, m1_kg, ...).
+void parse_param(dropfit::synth::MatParams& p, const std::string& text) {
+  const auto eq = text.find('=');
+  if (eq == std::string::npos) throw dropfit::Error(fmt::format("--param '{}': expected name=value", text));
+  const std::string name = text.substr(0, eq);
+  double value = 0.0;
+  try {
+    std::size_t used = 0;
+    value = std::stod(text.substr(eq + 1), &used);
+    if (used != text.size() - eq - 1) throw std::invalid_argument("trailing");
+  } catch (const std::exception&) {
+    throw dropfit::Error(fmt::format("--param '{}': '{}' is not a number", text, text.substr(eq + 1)));
+  }
+  double* field = nullptr;
+  if (name == "k1_n_m") field = &p.k1_n_m;
+  if (name == "k2_n_m") field = &p.k2_n_m;
+  if (name == "k3_n_m") field = &p.k3_n_m;
+  if (name == "r1_n_s_m") field = &p.r1_n_s_m;
+  if (name == "r2_n_s_m") field = &p.r2_n_s_m;
+  if (name == "r3_n_s_m") field = &p.r3_n_s_m;
+  if (name == "m_eff_kg") field = &p.m_eff_kg;
+  if (name == "m1_kg") field = &p.m1_kg;
+  if (name == "m2_kg") field = &p.m2_kg;
+  if (!field)
+    throw dropfit::Error(fmt::format("--param '{}': unknown parameter (k1_n_m k2_n_m k3_n_m r1_n_s_m r2_n_s_m r3_n_s_m "
+                                     "m_eff_kg m1_kg m2_kg)",
+                                     text));
+  *field = value;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   namespace fs = std::filesystem;
   using dropfit::synth::SynthOptions;
+  // The world preset first (every other option starts from its values).
+  std::string world = prescan(argc, argv, "--world");
+  if (world.empty()) world = "lab";
+  std::uint64_t seed = 1;
+  const std::string seed_text = prescan(argc, argv, "--seed");
+  if (!seed_text.empty()) {
+    try {
+      seed = std::stoull(seed_text);
+    } catch (const std::exception&) {
+      fmt::print(stderr, "dropfit-synth: error: --seed '{}' is not a non-negative integer\n", seed_text);
+      return 1;
+    }
+  }
   SynthOptions o;
+  try {
+    if (world == "classic")
+      o.seed = seed;
+    else if (world == "lab")
+      o = dropfit::synth::lab_session_options(seed);
+    else if (world == "independent")
+      o = dropfit::synth::independent_world_options(seed);
+    else
+      throw dropfit::Error(fmt::format("--world '{}': expected classic, lab or independent", world));
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "dropfit-synth: error: {}\n", e.what());
+    return 1;
+  }
   std::string out_dir, truth_path;
-  int model = 4;
-  std::vector<std::string> effects, gaps;
-  bool drift_whole = false;
+  int model = o.model.number;
+  std::vector<std::string> effects, gaps, params;
+  bool drift_whole = o.effects.baseline_drift_whole_record, random_effects = false;
+  std::string mat_markers = o.mat_marker_motion == dropfit::synth::MatMarkerMotion::Dish ? "dish" : "surface";
+  std::string base_markers =
+      o.base_marker_layout == dropfit::synth::BaseMarkerLayout::DiagonalCorners ? "corners" : "front-back";
+  std::vector<double> window{o.digitised_from_s, o.digitised_to_s};
 
   CLI::App app{"dropfit-synth: a synthetic drop-test session with known truth"};
   app.add_option("--out", out_dir, "session folder to create (must not exist or be empty)")->required();
   app.add_option("--truth", truth_path, "truth JSON to write (outside the session folder)")->required();
+  app.add_option("--world", world,
+                 "preset: lab (default: a realistic lab session, generator's default mat), independent (lab with a "
+                 "random plausible mat and impact speeds drawn from the seed), classic (the older tests' world)")
+      ->capture_default_str();
   app.add_option("--seed", o.seed, "random seed")->capture_default_str();
-  app.add_option("--model", model, "mat model 1..5 (paper's Models 1-5)")->check(CLI::Range(1, 5))->capture_default_str();
+  app.add_option("--model", model, "mat model 1..4 (paper's Models 1-4; Model 5 is not generated)")
+      ->check(CLI::Range(1, 4))
+      ->capture_default_str();
+  app.add_option("--param", params, "a true mat parameter: name=value (k1_n_m, r1_n_s_m, m1_kg, ...); repeatable");
   app.add_option("--effect", effects,
-                 "inject an effect: name=magnitude; names: lens_distortion (k1), outlier_marker (px), time_offset (ms), "
-                 "baseline_drift (N/s), force_scale (gain), stiffness_nonlinearity (k1_cubic N/m^3), hysteresis "
-                 "(r1_unload N s/m), rate_dependence (Maxwell k N/m), layer_mass (kg moved to the top layer)");
+                 "inject an effect: name=magnitude; names: lens_distortion (k1), lens_distortion_px (px at the "
+                 "outermost trial marker), outlier_marker (px), outlier_swap (1: two fit markers swapped in cam2), "
+                 "time_offset (ms, video clock ahead), baseline_drift (N/s), force_scale (gain), "
+                 "stiffness_nonlinearity (k1_cubic N/m^3), hysteresis (r1_unload N s/m: extra damping), "
+                 "hysteresis_elastic (h: elastic force (1-h) lower while unloading), rate_dependence (Maxwell k N/m), "
+                 "layer_mass (kg moved to the top layer)");
+  app.add_flag("--random-effects", random_effects, "add a random mix of effects (none, one or several) from the seed");
   app.add_option("--maxwell-tau", o.effects.maxwell_tau_s, "time constant of the rate_dependence Maxwell arm (s)")
       ->capture_default_str();
-  app.add_flag("--drift-whole-record", drift_whole, "baseline_drift ramps from the first sample, not the trigger");
+  app.add_option("--hysteresis-transition", o.effects.hysteresis_transition_m_s,
+                 "v_h of hysteresis_elastic's tanh switch (m/s)")
+      ->capture_default_str();
+  app.add_flag("--drift-whole-record,!--drift-from-trigger", drift_whole,
+               "baseline_drift ramps from the first sample (else from the trigger)");
   app.add_option("--velocities", o.impact_velocities_m_s, "impact velocities, one trial each (m/s)")
       ->capture_default_str();
   app.add_option("--frames", o.n_frames, "video frames per trial")->capture_default_str();
   app.add_option("--trigger-frame", o.trigger_frame, "0-based frame at the force trigger")->capture_default_str();
+  app.add_option("--window", window, "digitised window FROM TO (s about contact; NaN outside)")
+      ->expected(2)
+      ->capture_default_str();
+  app.add_option("--random-gaps", o.random_gaps_per_trial, "random 1..--gap-max-frames gaps per trial")
+      ->capture_default_str();
+  app.add_option("--gap-max-frames", o.gap_max_frames, "longest random gap (frames)")->capture_default_str();
+  app.add_option("--gap-both-fraction", o.gap_both_cameras_fraction, "share of random gaps in both cameras")
+      ->capture_default_str();
   app.add_option("--samples", o.n_samples, "force samples per trial")->capture_default_str();
-  app.add_option("--pixel-noise", o.pixel_noise_px, "pixel noise SD (px)")->capture_default_str();
+  app.add_option("--pretrigger-fraction", o.pretrigger_fraction, "share of the force record before the trigger")
+      ->capture_default_str();
+  app.add_option("--pixel-noise", o.pixel_noise_px, "marker pixel noise SD (px)")->capture_default_str();
+  app.add_option("--calibration-noise", o.calibration_pixel_noise_px,
+                 "calibration pixel noise SD (px; negative = --pixel-noise)")
+      ->capture_default_str();
   app.add_option("--channel-noise", o.channel_noise_n, "force channel noise SD (N)")->capture_default_str();
+  app.add_option("--mat-markers", mat_markers, "surface (follow the mat top under the impactor) or dish (top layer x w)")
+      ->check(CLI::IsMember({"surface", "dish"}))
+      ->capture_default_str();
+  app.add_option("--mat-marker-radius", o.mat_marker_min_radius_m, "dish markers: least distance from the centre (m)")
+      ->capture_default_str();
+  app.add_option("--mat-marker-radius-max", o.mat_marker_max_radius_m, "dish markers: largest distance (m)")
+      ->capture_default_str();
+  app.add_option("--base-markers", base_markers, "front-back or corners (the face's diagonal corners)")
+      ->check(CLI::IsMember({"front-back", "corners"}))
+      ->capture_default_str();
+  app.add_option("--base-marker-height", o.base_marker_height_m, "base markers above the face (m)")
+      ->capture_default_str();
+  app.add_option("--impact-scatter", o.impact_point_sd_m, "impact point SD about the plate centre, per axis (m)")
+      ->capture_default_str();
+  app.add_option("--tilt-mean", o.tilt_mean_deg, "impactor tilt mean (deg)")->capture_default_str();
+  app.add_option("--tilt-sd", o.tilt_sd_deg, "impactor tilt SD (deg)")->capture_default_str();
+  app.add_flag("--tilt-random-axis,!--tilt-about-y", o.tilt_random_axis, "tilt about a random horizontal axis")
+      ->capture_default_str();
+  app.add_flag("--catch-at-apex,!--free-rebound", o.catch_at_apex,
+               "the impactor is caught at the top of its rebound (else it may land again)")
+      ->capture_default_str();
   app.add_option("--gap", gaps, "hide a marker: TRIAL:POINT:CAMERA:FIRST:COUNT (1-based trial and camera, 0 = all)");
   CLI11_PARSE(app, argc, argv);
 
   try {
-    o.model = static_cast<dropfit::fitting::ModelKind>(model);
+    o.model = static_cast<dropfit::synth::ModelKind>(model);
+    if (!params.empty()) {
+      if (o.use_default_params) o.params = dropfit::synth::default_mat_params(o.model, o.layers);
+      o.use_default_params = false;
+      for (const std::string& p : params) parse_param(o.params, p);
+    }
+    if (random_effects) dropfit::synth::add_random_effects(o, o.seed);
     for (const std::string& e : effects) parse_effect(o.effects, e);
     o.effects.baseline_drift_whole_record = drift_whole;
     for (const std::string& g : gaps) o.gaps.push_back(parse_gap(g));
+    o.mat_marker_motion =
+        mat_markers == "dish" ? dropfit::synth::MatMarkerMotion::Dish : dropfit::synth::MatMarkerMotion::FollowSurface;
+    o.base_marker_layout = base_markers == "corners" ? dropfit::synth::BaseMarkerLayout::DiagonalCorners
+                                                     : dropfit::synth::BaseMarkerLayout::FrontBack;
+    o.digitised_from_s = window[0];
+    o.digitised_to_s = window[1];
 
     std::error_code ec;
     if (fs::exists(out_dir, ec) && !(fs::is_directory(out_dir, ec) && fs::is_empty(out_dir, ec)))
@@ -113,8 +248,11 @@ int main(int argc, char** argv) {
     s.session.root = out_dir;
     dropfit::capture::write_session(out_dir, s.session);
     dropfit::synth::write_truth_json(truth_path, s.truth);
-    fmt::print("wrote {} ({} trials, model{}, {} effects) and {}\n", out_dir, s.session.trials.size(), model,
-               s.truth.effects.size(), truth_path);
+    std::vector<std::string> names;
+    for (const auto& e : s.truth.effects) names.push_back(e.name);
+    fmt::print("wrote {} ({} world, {} trials, model{}, effects: {}) and {}\n", out_dir, o.world,
+               s.session.trials.size(), model, names.empty() ? "none" : fmt::format("{}", fmt::join(names, " ")),
+               truth_path);
   } catch (const std::exception& e) {
     fmt::print(stderr, "dropfit-synth: error: {}\n", e.what());
     return 1;

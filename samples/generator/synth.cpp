@@ -34,7 +34,6 @@
 #include <unistd.h>
 
 #include "core/error.h"
-#include "fitting/model5.h"
 
 namespace dropfit::synth {
 namespace {
@@ -42,7 +41,7 @@ namespace {
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kDeg = kPi / 180.0;
-constexpr double kSimDt = 1e-5;  // output step of fitting::simulate, interpolated linearly
+constexpr double kSimDt = 1e-5;  // output step of the physics (simulate_chain), interpolated linearly
 
 // ---- Random numbers: deterministic on every platform --------------------
 // mt19937_64's output is fixed by the standard; the distributions of
@@ -83,6 +82,8 @@ class Rng {
 // Stream ids.
 constexpr std::uint64_t kStreamCalibrationNoise = 1;
 constexpr std::uint64_t kStreamOutlier = 2;
+constexpr std::uint64_t kStreamLayout = 3;
+constexpr std::uint64_t kStreamGaps = 3000;  // + trial index
 constexpr std::uint64_t kStreamTrial = 100;       // + trial index: tilt, impact point, shear, offsets
 constexpr std::uint64_t kStreamForceNoise = 1000;  // + trial index: contact phase and channel noise
 constexpr std::uint64_t kStreamPixelNoise = 2000;  // + trial index
@@ -104,7 +105,7 @@ double interp(const Eigen::VectorXd& y, double t, double dt) {
   return (1.0 - f) * y(k) + f * y(k + 1);
 }
 
-std::string model_key(fitting::ModelKind kind) { return fmt::format("model{}", static_cast<int>(kind)); }
+std::string model_key(ModelChoice kind) { return fmt::format("model{}", kind.number); }
 
 void require(bool ok, const std::string& reason) {
   if (!ok) throw Error("dropfit-synth: " + reason);
@@ -140,6 +141,15 @@ void validate(const SynthOptions& o) {
   require(o.trigger_threshold_n > 0.0, "trigger threshold must be positive");
   require(o.channel_noise_n >= 0.0 && o.channel_offset_sd_n >= 0.0, "channel noise and offsets must not be negative");
   require(o.effects.force_scale > 0.0, "force_scale must be positive");
+  require(o.digitised_from_s < o.digitised_to_s, "the digitised window must end after it starts");
+  require(o.random_gaps_per_trial >= 0 && o.gap_max_frames >= 1, "random gaps: a count >= 0 and lengths >= 1 frame");
+  require(o.mat_marker_min_radius_m > 0.0 && o.mat_marker_max_radius_m >= o.mat_marker_min_radius_m &&
+              o.mat_marker_max_radius_m < 0.5 * std::max(o.mat_length_m, o.mat_width_m) &&
+              o.mat_marker_min_radius_m < 0.5 * std::min(o.mat_length_m, o.mat_width_m),
+          "mat marker radii must be positive, ordered and on the mat");
+  require(o.dish_width_m > 0.0, "dish width must be positive");
+  require(o.effects.lens_distortion_px >= 0.0, "lens_distortion_px must not be negative");
+  require(o.effects.hysteresis_h >= 0.0 && o.effects.hysteresis_h < 1.0, "hysteresis_elastic h must lie in [0, 1)");
   require(o.effects.outlier_marker_px >= 0.0, "outlier_marker must not be negative");
   for (const Gap& g : o.gaps)
     require(g.trial >= 0 && g.trial < static_cast<int>(o.impact_velocities_m_s.size()) && g.n_frames >= 0 &&
@@ -277,24 +287,27 @@ Eigen::Matrix3d impactor_rotation(double sx, double sy) {
 
 double deviation_deg(double sx, double sy) { return std::atan(std::hypot(sx, sy)) / kDeg; }
 
-struct MatPhysics {
-  fitting::Simulation sim;
-  Eigen::VectorXd tilt_x, tilt_y;  // Model 5 only: face slopes per sample
-};
 
 }  // namespace
 
 // ---- Public pieces ----------------------------------------------------------
 
 std::vector<std::string> effect_names() {
-  return {"lens_distortion", "outlier_marker",         "time_offset", "baseline_drift", "force_scale",
-          "stiffness_nonlinearity", "hysteresis", "rate_dependence", "layer_mass"};
+  return {"lens_distortion",        "lens_distortion_px", "outlier_marker",     "outlier_swap",
+          "time_offset",            "baseline_drift",     "force_scale",        "stiffness_nonlinearity",
+          "hysteresis",             "hysteresis_elastic", "rate_dependence",    "layer_mass"};
 }
 
 void set_effect(Effects& e, const std::string& name, double magnitude) {
   if (!std::isfinite(magnitude)) throw Error(fmt::format("effect {}: magnitude must be finite", name));
   if (name == "lens_distortion")
     e.lens_distortion_k1 = magnitude;
+  else if (name == "lens_distortion_px")
+    e.lens_distortion_px = magnitude;
+  else if (name == "outlier_swap")
+    e.outlier_swap = magnitude != 0.0;
+  else if (name == "hysteresis_elastic")
+    e.hysteresis_h = magnitude;
   else if (name == "outlier_marker")
     e.outlier_marker_px = magnitude;
   else if (name == "time_offset")
@@ -315,23 +328,24 @@ void set_effect(Effects& e, const std::string& name, double magnitude) {
     throw Error(fmt::format("unknown effect '{}' (known: {})", name, fmt::join(effect_names(), ", ")));
 }
 
-fitting::MatParams default_mat_params(fitting::ModelKind model, const std::vector<LayerSpec>& layers) {
-  fitting::MatParams p;
+MatParams default_mat_params(ModelChoice model_choice, const std::vector<LayerSpec>& layers) {
+  const ModelKind model = model_choice.kind();
+  MatParams p;
   double total = 0.0;
   for (const LayerSpec& l : layers) total += l.mass_kg;
   const double m2 = layers.empty() ? 0.0 : layers.back().mass_kg;
   const double m1 = total - m2;
   switch (model) {
-    case fitting::ModelKind::Model1:  // Table 2, Model 1
+    case ModelKind::Model1:  // Table 2, Model 1
       p.k1_n_m = 84183.0;
       p.r1_n_s_m = 5700.0;
       break;
-    case fitting::ModelKind::Model2:  // Table 2, Model 2; m_eff not published: 40 % of the mat
+    case ModelKind::Model2:  // Table 2, Model 2; m_eff not published: 40 % of the mat
       p.k1_n_m = 84183.0;
       p.r1_n_s_m = 5700.0;
       p.m_eff_kg = 0.4 * total;
       break;
-    case fitting::ModelKind::Model3:  // Table 2, Model 3
+    case ModelKind::Model3:  // Table 2, Model 3
       p.k1_n_m = 76700.0;
       p.k2_n_m = 807380.0;
       p.r1_n_s_m = 490.0;
@@ -339,7 +353,7 @@ fitting::MatParams default_mat_params(fitting::ModelKind model, const std::vecto
       p.m1_kg = m1;
       p.m2_kg = m2;
       break;
-    case fitting::ModelKind::Model4:  // scanned about Table 2 (header comment)
+    case ModelKind::Model4:  // scanned about Table 2 (header comment)
       p.k1_n_m = 79282.5;
       p.k2_n_m = 849226.0;
       p.k3_n_m = 748625.0;
@@ -349,7 +363,7 @@ fitting::MatParams default_mat_params(fitting::ModelKind model, const std::vecto
       p.m1_kg = m1;
       p.m2_kg = m2;
       break;
-    case fitting::ModelKind::Model5:  // Table 2, Model 5
+    case ModelKind::Model5:  // Table 2, Model 5
       p.k1_n_m = 70880.0;
       p.k2_n_m = 787200.0;
       p.k3_n_m = 617120.0;
@@ -361,6 +375,122 @@ fitting::MatParams default_mat_params(fitting::ModelKind model, const std::vecto
       break;
   }
   return p;
+}
+
+// ---- Presets ------------------------------------------------------------------
+
+SynthOptions lab_session_options(std::uint64_t seed) {
+  SynthOptions o;
+  o.seed = seed;
+  o.world = "lab";
+  // Impactor and markers.
+  o.base_marker_layout = BaseMarkerLayout::DiagonalCorners;
+  o.base_marker_height_m = 0.0;
+  o.impact_point_sd_m = 0.015;
+  o.tilt_random_axis = true;
+  o.catch_at_apex = true;
+  o.mat_marker_motion = MatMarkerMotion::Dish;
+  // Video: one second around the trigger, digitised -0.1 .. +0.15 s about
+  // contact with a few 1-5-frame gaps.
+  o.n_frames = 1000;
+  o.trigger_frame = 500;
+  o.digitised_from_s = -0.10;
+  o.digitised_to_s = 0.15;
+  o.random_gaps_per_trial = 4;
+  o.gap_max_frames = 5;
+  o.gap_both_cameras_fraction = 0.3;
+  o.pixel_noise_px = 0.3;
+  o.calibration_pixel_noise_px = 0.2;
+  // Force: 5 s records, 10 % before the trigger, 1.5 N per channel.
+  o.n_samples = 5000;
+  o.pretrigger_fraction = 0.10;
+  o.channel_noise_n = 1.5;
+  o.effects.baseline_drift_whole_record = true;
+  o.effects.maxwell_tau_s = 0.025;
+  return o;
+}
+
+SynthOptions independent_world_options(std::uint64_t seed) {
+  SynthOptions o = lab_session_options(seed);
+  o.world = "independent";
+  Rng r(seed, 9001);
+  auto log_uniform = [&](double lo, double hi) { return lo * std::pow(hi / lo, r.uniform()); };
+  o.impact_velocities_m_s.clear();
+  for (int i = 0; i < 5; ++i) o.impact_velocities_m_s.push_back(std::round((4.0 + 2.2 * r.uniform()) * 100.0) / 100.0);
+  const double v_max = *std::max_element(o.impact_velocities_m_s.begin(), o.impact_velocities_m_s.end());
+  double thickness = 0.0;
+  for (const LayerSpec& l : o.layers) thickness += l.thickness_m;
+  const MatParams base = default_mat_params(ModelKind::Model4, o.layers);
+  for (int attempt = 0; attempt < 500; ++attempt) {
+    MatParams p = base;
+    p.k1_n_m = log_uniform(2e4, 1e5);
+    p.k2_n_m = log_uniform(5e5, 2e6);
+    p.k3_n_m = log_uniform(5e5, 2e6);
+    p.r1_n_s_m = log_uniform(30.0, 300.0);
+    p.r2_n_s_m = log_uniform(80.0, 800.0);
+    p.r3_n_s_m = log_uniform(80.0, 800.0);
+    p.k1_cubic_n_m3 = r.uniform() < 0.5 ? 0.0 : 2e6 + 6e6 * r.uniform();
+    // Plausible: the fastest trial stays within 75 % of the mat's thickness
+    // and the impactor leaves the mat.
+    ChainImpact im;
+    im.mass_kg = o.impactor_mass_kg;
+    im.velocity_m_s = v_max;
+    im.gravity_m_s2 = o.gravity_m_s2;
+    im.duration_s = 0.3;
+    im.output_dt_s = 1e-4;
+    im.catch_at_apex = true;
+    const ChainSimulation sim = simulate_chain(ModelKind::Model4, p, im);
+    if (!(sim.impactor_m.maxCoeff() < 0.75 * thickness) || !std::isfinite(sim.separation_s)) continue;
+    o.use_default_params = false;
+    o.effects.k1_cubic_n_m3 = p.k1_cubic_n_m3;  // named in the truth as stiffness_nonlinearity
+    p.k1_cubic_n_m3 = 0.0;
+    o.params = p;
+    return o;
+  }
+  throw Error(fmt::format("independent_world_options: no plausible mat drawn for seed {}", seed));
+}
+
+void add_random_effects(SynthOptions& o, std::uint64_t seed) {
+  Rng r(seed, 9002);
+  const double u = r.uniform();
+  const int count = u < 0.25 ? 0 : (u < 0.6 ? 1 : 2 + static_cast<int>(r.uniform() * 3.0));  // 0, 1 or 2-4
+  std::vector<int> pool{0, 1, 2, 3, 4, 5, 6, 7};
+  Effects& e = o.effects;
+  const double record_s = static_cast<double>(o.n_samples) / o.force_rate_hz;
+  for (int k = 0; k < count && !pool.empty(); ++k) {
+    const std::size_t i = std::min(pool.size() - 1, static_cast<std::size_t>(r.uniform() * pool.size()));
+    const int which = pool[i];
+    pool.erase(pool.begin() + static_cast<std::ptrdiff_t>(i));
+    const double sign = r.uniform() < 0.5 ? -1.0 : 1.0;
+    switch (which) {
+      case 0:
+        e.lens_distortion_px = 0.7 + 0.8 * r.uniform();
+        break;
+      case 1:
+        e.outlier_swap = true;
+        break;
+      case 2:
+        e.time_offset_ms = sign * (1.0 + 3.0 * r.uniform());
+        break;
+      case 3:
+        e.baseline_drift_n_s = sign * (10.0 + 30.0 * r.uniform()) / record_s;  // 10-40 N over the record
+        e.baseline_drift_whole_record = true;
+        break;
+      case 4:
+        e.force_scale = 1.0 + sign * (0.03 + 0.04 * r.uniform());
+        break;
+      case 5:
+        e.hysteresis_h = 0.15 + 0.15 * r.uniform();
+        break;
+      case 6:
+        e.maxwell_k_n_m = 25000.0 + 5000.0 * r.uniform();
+        e.maxwell_tau_s = 0.020 + 0.010 * r.uniform();
+        break;
+      case 7:
+        e.layer_mass_shift_kg = sign * (0.5 + 0.7 * r.uniform());
+        break;
+    }
+  }
 }
 
 Eigen::Matrix<double, 8, 1> kistler_channels(const Eigen::Vector3d& f_n, const Eigen::Vector2d& cop_m, double a_m,
@@ -417,7 +547,7 @@ SyntheticSession make_session(const SynthOptions& o) {
   const double g = o.gravity_m_s2;
 
   // -- Mat physics with the mat effects.
-  fitting::MatParams params = o.use_default_params ? default_mat_params(o.model, o.layers) : o.params;
+  MatParams params = o.use_default_params ? default_mat_params(o.model, o.layers) : o.params;
   if (fx.k1_cubic_n_m3 != 0.0) {
     params.k1_cubic_n_m3 = fx.k1_cubic_n_m3;
     truth.effects.push_back({"mat", "stiffness_nonlinearity", fx.k1_cubic_n_m3, "N/m^3",
@@ -429,6 +559,16 @@ SyntheticSession make_session(const SynthOptions& o) {
                              fmt::format("element 1 damping while extending is {:.6g} N s/m instead of r1 = {:.6g} N s/m",
                                          fx.r1_unload_n_s_m, params.r1_n_s_m)});
   }
+  if (fx.hysteresis_h != 0.0) {
+    require(fx.hysteresis_h > 0.0 && fx.hysteresis_h < 1.0, "hysteresis_elastic h must lie in (0, 1)");
+    params.k1_hysteresis = fx.hysteresis_h;
+    params.hysteresis_transition_m_s = fx.hysteresis_transition_m_s;
+    truth.effects.push_back(
+        {"mat", "hysteresis", fx.hysteresis_h, "h",
+         fmt::format("element 1's elastic force times (1 - h (1 - tanh(d'/{:.3g}))/2), h = {:.6g}: {:.3g} times lower "
+                     "while unloading (not extra damping)",
+                     fx.hysteresis_transition_m_s, fx.hysteresis_h, 1.0 - fx.hysteresis_h)});
+  }
   if (fx.maxwell_k_n_m > 0.0) {
     require(fx.maxwell_tau_s > 0.0, "rate_dependence needs a positive Maxwell time constant");
     params.maxwell_k_n_m = fx.maxwell_k_n_m;
@@ -438,9 +578,8 @@ SyntheticSession make_session(const SynthOptions& o) {
                                          fx.maxwell_k_n_m, fx.maxwell_tau_s)});
   }
   if (fx.layer_mass_shift_kg != 0.0) {
-    require(o.model == fitting::ModelKind::Model3 || o.model == fitting::ModelKind::Model4 ||
-                o.model == fitting::ModelKind::Model5,
-            "layer_mass needs a layered model (3, 4 or 5)");
+    require(o.model == ModelKind::Model3 || o.model == ModelKind::Model4,
+            "layer_mass needs a layered model (3 or 4)");
     params.m1_kg += fx.layer_mass_shift_kg;
     params.m2_kg -= fx.layer_mass_shift_kg;
     require(params.m1_kg > 0.0 && params.m2_kg > 0.0,
@@ -450,20 +589,78 @@ SyntheticSession make_session(const SynthOptions& o) {
                                          params.m1_kg, params.m2_kg)});
   }
 
+  // -- Marker layout: base markers in the impactor's frame (face centre
+  // origin, X front, Z up), mat markers' lab x, y.
+  const double h_base = o.base_marker_height_m;
+  Eigen::Vector3d base_offset[2];
+  if (o.base_marker_layout == BaseMarkerLayout::DiagonalCorners) {
+    const double ax = 0.5 * o.footprint_m.x(), ay = 0.5 * o.footprint_m.y();
+    base_offset[0] = {ax, ay, h_base};
+    base_offset[1] = {-ax, -ay, h_base};
+  } else {
+    base_offset[0] = {o.base_marker_spacing_m, 0.0, h_base};
+    base_offset[1] = {-o.base_marker_spacing_m, 0.0, h_base};
+  }
+  Eigen::Vector2d mat_xy[4];
+  if (o.mat_marker_motion == MatMarkerMotion::Dish) {
+    Rng lay(o.seed, kStreamLayout);
+    const Eigen::Vector2d dirs[4] = {{0.0, 1.0}, {0.0, -1.0}, {1.0, 0.0}, {-1.0, 0.0}};
+    for (int i = 0; i < 4; ++i) {
+      // Within the range and at least 2 cm inside the mat's edge.
+      const double edge = 0.5 * (i < 2 ? o.mat_width_m : o.mat_length_m) - 0.02;
+      const double hi = std::max(o.mat_marker_min_radius_m, std::min(o.mat_marker_max_radius_m, edge));
+      const double r = o.mat_marker_min_radius_m + (hi - o.mat_marker_min_radius_m) * lay.uniform();
+      mat_xy[i] = r * dirs[i];
+    }
+  } else {
+    const double ry = 0.5 * o.footprint_m.y() + o.surface_marker_clearance_m;
+    const double rx = 0.5 * o.footprint_m.x() + o.surface_marker_clearance_m;
+    mat_xy[0] = {0.0, ry}, mat_xy[1] = {0.0, -ry}, mat_xy[2] = {rx, 0.0}, mat_xy[3] = {-rx, 0.0};
+  }
+  truth.base_markers_impactor_m = {base_offset[0], base_offset[1]};
+  truth.mat_markers_xy_m.assign(std::begin(mat_xy), std::end(mat_xy));
+
   // -- Cameras and calibration.
   std::vector<double> distortion;
-  if (fx.lens_distortion_k1 != 0.0) {
-    distortion = {fx.lens_distortion_k1, o.extra_distortion[0], o.extra_distortion[1], o.extra_distortion[2],
-                  o.extra_distortion[3]};
-    truth.effects.push_back({"calibration", "lens_distortion", fx.lens_distortion_k1, "k1",
-                             fmt::format("Bouguet k1 k2 p1 p2 k3 = {} on both cameras", fmt::join(distortion, " "))});
+  truth.cameras = make_cameras(o, mat_top_m, {});
+  double k1_lens = fx.lens_distortion_k1;
+  if (fx.lens_distortion_px > 0.0) {
+    // The k1 that moves the trial marker farthest from an image centre (at
+    // contact: mat markers at rest, base markers over the mat top) by
+    // lens_distortion_px, barrel (k1 < 0) as real lenses mostly are.
+    double r_max = 0.0, focal = truth.cameras[0].camera.focal_px;
+    std::vector<Eigen::Vector3d> pts{Eigen::Vector3d(base_offset[0].x(), base_offset[0].y(), mat_top_m + h_base),
+                                     Eigen::Vector3d(base_offset[1].x(), base_offset[1].y(), mat_top_m + h_base)};
+    for (const Eigen::Vector2d& xy : mat_xy) pts.emplace_back(xy.x(), xy.y(), mat_top_m);
+    for (const TrueCamera& c : truth.cameras)
+      for (const Eigen::Vector3d& p : pts)
+        r_max = std::max(r_max, (pinhole_px(c, p) - c.camera.principal_point_px).norm() / c.camera.focal_px);
+    require(r_max > 1e-3, "lens_distortion_px: the markers sit on the optical axis");
+    // |du| = f |k1| r^3 to first order; solve f |k1| r^3 (1 + k1 r^2) = px by a few fixed-point steps.
+    double k1 = -fx.lens_distortion_px / (focal * r_max * r_max * r_max);
+    for (int it = 0; it < 5; ++it)
+      k1 = -fx.lens_distortion_px / (focal * r_max * r_max * r_max * (1.0 + k1 * r_max * r_max));
+    k1_lens = k1;
   }
-  truth.cameras = make_cameras(o, mat_top_m, distortion);
+  if (k1_lens != 0.0) {
+    distortion = {k1_lens, o.extra_distortion[0], o.extra_distortion[1], o.extra_distortion[2],
+                  o.extra_distortion[3]};
+    for (TrueCamera& c : truth.cameras) c.camera.distortion = distortion;
+    truth.effects.push_back(
+        {"calibration", "lens_distortion", k1_lens, "k1",
+         fmt::format("Bouguet k1 k2 p1 p2 k3 = {} on both cameras{}", fmt::join(distortion, " "),
+                     fx.lens_distortion_px > 0.0
+                         ? fmt::format(" ({} px at the trial marker farthest from an image centre)",
+                                       fx.lens_distortion_px)
+                         : std::string())});
+  }
   const int n_cam = static_cast<int>(truth.cameras.size());
 
   session.frame = calibration_layout(o, mat_top_m);
   {
     Rng noise(o.seed, kStreamCalibrationNoise);
+    const double calib_noise_px = o.calibration_pixel_noise_px >= 0.0 ? o.calibration_pixel_noise_px : o.pixel_noise_px;
+    truth.calibration_pixel_noise_px = calib_noise_px;
     std::vector<std::vector<Eigen::Vector2d>> noisy(n_cam);
     std::vector<std::vector<bool>> seen(n_cam);
     for (const CalibrationMarker& m : session.frame) {
@@ -474,7 +671,7 @@ SyntheticSession make_session(const SynthOptions& o) {
         const Eigen::Vector2d clean = project_px(truth.cameras[c], m.lab_m);
         const Eigen::Vector2d e(noise.normal(), noise.normal());
         t.image_px.push_back(clean);
-        noisy[c].push_back(clean + o.pixel_noise_px * e);
+        noisy[c].push_back(clean + calib_noise_px * e);
         seen[c].push_back(in_image(truth.cameras[c], clean, depth));
       }
       truth.calibration_markers.push_back(t);
@@ -510,6 +707,26 @@ SyntheticSession make_session(const SynthOptions& o) {
            fmt::format("{} in {} is off by {} px towards {} ({:.1f} px away{})", clean[a].id,
                        truth.cameras[n_cam - 1].camera.name, fx.outlier_marker_px, clean[best].id, dist,
                        std::abs(dist - fx.outlier_marker_px) < 0.5 ? ": mislabelled as it" : "")});
+    }
+    // outlier_swap: two fit markers' image points swapped in the last camera
+    // (a labelling slip when clicking them).
+    if (fx.outlier_swap) {
+      Rng pick(o.seed, kStreamOutlier + 7);
+      std::vector<int> fit;
+      for (int i = 0; i < static_cast<int>(session.frame.size()); ++i)
+        if (session.frame[i].role == MarkerRole::Fit && seen[n_cam - 1][i]) fit.push_back(i);
+      require(fit.size() >= 2, "outlier_swap needs two visible fit markers");
+      const std::size_t ia = std::min<std::size_t>(fit.size() - 1, static_cast<std::size_t>(pick.uniform() * fit.size()));
+      std::size_t ib = std::min<std::size_t>(fit.size() - 2, static_cast<std::size_t>(pick.uniform() * (fit.size() - 1)));
+      if (ib >= ia) ++ib;
+      const int a = fit[ia], b = fit[ib];
+      std::swap(noisy[n_cam - 1][a], noisy[n_cam - 1][b]);
+      const double dist = (truth.calibration_markers[a].image_px[n_cam - 1] -
+                           truth.calibration_markers[b].image_px[n_cam - 1]).norm();
+      truth.effects.push_back({"calibration", "outlier_marker", dist, "px",
+                               fmt::format("{} and {} swapped in {} (a labelling slip; {:.1f} px apart)",
+                                           session.frame[a].id, session.frame[b].id,
+                                           truth.cameras[n_cam - 1].camera.name, dist)});
     }
     for (int c = 0; c < n_cam; ++c) {
       CalibrationImage image;
@@ -563,15 +780,7 @@ SyntheticSession make_session(const SynthOptions& o) {
     truth.effects.push_back({"forceplate", "force_scale", fx.force_scale, "gain",
                              fmt::format("every channel reads {} times the true load", fx.force_scale)});
 
-  // Marker offsets in the impactor's frame (face centre origin) and mat marker positions.
-  const double s = o.base_marker_spacing_m, h = o.base_marker_height_m;
-  const Eigen::Vector3d base_offset[2] = {{s, 0.0, h}, {-s, 0.0, h}};
-  const double ry = 0.5 * o.footprint_m.y() + o.surface_marker_clearance_m;
-  const double rx = 0.5 * o.footprint_m.x() + o.surface_marker_clearance_m;
-  const Eigen::Vector2d mat_xy[4] = {{0.0, ry}, {0.0, -ry}, {rx, 0.0}, {-rx, 0.0}};
   const int n_pts = static_cast<int>(m.video.points.size());
-  truth.base_markers_impactor_m = {base_offset[0], base_offset[1]};
-  truth.mat_markers_xy_m.assign(std::begin(mat_xy), std::end(mat_xy));
 
   const int n = o.n_samples;
   const int npre = static_cast<int>(std::lround(o.pretrigger_fraction * n));
@@ -581,6 +790,7 @@ SyntheticSession make_session(const SynthOptions& o) {
   constexpr double kTriggerSearch_s = 0.15;  // longest contact-to-trigger delay allowed
 
   truth.seed = o.seed;
+  truth.world = o.world;
   truth.model = o.model;
   truth.params = params;
   truth.points = m.video.points;
@@ -601,42 +811,38 @@ SyntheticSession make_session(const SynthOptions& o) {
 
     Rng r(o.seed, kStreamTrial + ti);
     const double tilt_abs_deg = std::abs(o.tilt_mean_deg + o.tilt_sd_deg * r.normal());
-    const double tilt_rad = (r.uniform() < 0.5 ? -1.0 : 1.0) * tilt_abs_deg * kDeg;
-    tt.tilt_about_y_deg = tilt_rad / kDeg;
+    const double tilt_sign = r.uniform() < 0.5 ? -1.0 : 1.0;
+    const double tilt_rad = tilt_sign * tilt_abs_deg * kDeg;
     tt.impact_point_m = Eigen::Vector2d(r.normal(), r.normal()) * o.impact_point_sd_m;
     tt.cop_m = tt.impact_point_m;
     tt.shear_fraction = Eigen::Vector2d(2.0 * r.uniform() - 1.0, 2.0 * r.uniform() - 1.0) * o.shear_fraction_max;
     for (int c = 0; c < 8; ++c) tt.channel_offsets_n(c) = o.channel_offset_sd_n * r.normal();
+    // Face slopes (d travel / dx, d travel / dy): about lab Y, or about a
+    // random horizontal axis (its own stream: the classic draws stay).
+    Eigen::Vector2d face_slopes(std::tan(tilt_rad), 0.0);
+    tt.tilt_axis_deg = 90.0;
+    if (o.tilt_random_axis) {
+      Rng ax(o.seed, kStreamTrial + 500 + ti);
+      const double phi = 2.0 * kPi * ax.uniform();  // direction of steepest descent of the face
+      face_slopes = std::tan(tilt_abs_deg * kDeg) * Eigen::Vector2d(std::cos(phi), std::sin(phi));
+      tt.tilt_axis_deg = std::remainder(phi / kDeg + 90.0, 360.0);
+    }
+    tt.tilt_about_y_deg = std::atan(face_slopes.x()) / kDeg;
 
-    // -- Physics from first contact.
-    fitting::Impact impact;
+    // -- Physics from first contact: the generator's own (physics.h).
+    ChainImpact impact;
     impact.mass_kg = o.impactor_mass_kg;
     impact.velocity_m_s = v;
     impact.gravity_m_s2 = g;
     impact.duration_s = std::max(t_end_force, t_end_video) + kTriggerSearch_s + 2.0 / fs;
     impact.output_dt_s = kSimDt;
-    MatPhysics phys;
-    if (o.model == fitting::ModelKind::Model5) {
-      fitting::Model5Geometry geo;
-      geo.mat_length_m = o.mat_length_m;
-      geo.mat_width_m = o.mat_width_m;
-      geo.footprint_length_m = o.footprint_m.x();
-      geo.footprint_width_m = o.footprint_m.y();
-      geo.impact_x_m = tt.impact_point_m.x();
-      geo.impact_y_m = tt.impact_point_m.y();
-      geo.tilt_x0_rad = std::tan(tilt_rad);
-      fitting::Model5Result r5 = fitting::simulate_model5_detailed(params, geo, impact);
-      phys.sim = std::move(r5.sim);
-      phys.tilt_x = std::move(r5.tilt_x_rad);
-      phys.tilt_y = std::move(r5.tilt_y_rad);
-    } else {
-      phys.sim = fitting::simulate(o.model, params, impact);
-    }
-    const fitting::Simulation& sim = phys.sim;
+    impact.catch_at_apex = o.catch_at_apex;
+    const ChainSimulation sim = simulate_chain(o.model, params, impact);
     require(sim.grf_n.size() >= 2, "simulation returned no samples");
-    // Face-centre travel at first contact (Model 5 starts with the lowest
-    // corner at the mat top, so a tilted face centre is still above it).
-    const double d0 = sim.impactor_m(0);
+    tt.impact_velocity_after_m_s = kNaN;
+    if (std::isfinite(sim.separation_s))
+      tt.impact_velocity_after_m_s = -interp(sim.impactor_v_m_s, sim.separation_s, kSimDt);
+    const double d0 = 0.0;
     auto face_travel = [&](double tau) {
       if (tau >= 0.0) return interp(sim.impactor_m, tau, kSimDt);
       const double tau_release = -v / g;  // held at rest before the release
@@ -644,10 +850,20 @@ SyntheticSession make_session(const SynthOptions& o) {
       return d0 + v * t + 0.5 * g * t * t;
     };
     auto surface_travel = [&](double tau) { return tau >= 0.0 ? interp(sim.surface_m, tau, kSimDt) : 0.0; };
-    auto slopes = [&](double tau) -> Eigen::Vector2d {
-      if (phys.tilt_x.size() == 0) return {std::tan(tilt_rad), 0.0};
-      return {interp(phys.tilt_x, std::max(tau, 0.0), kSimDt), interp(phys.tilt_y, std::max(tau, 0.0), kSimDt)};
+    auto layer_travel = [&](const Eigen::VectorXd& y, double tau) { return tau >= 0.0 ? interp(y, tau, kSimDt) : 0.0; };
+    const bool has_layer = o.model != ModelKind::Model1;
+    // What the mat markers follow: the top layer (or, with no layer mass, element 1's top).
+    auto top_layer_travel = [&](double tau) {
+      return has_layer ? layer_travel(sim.layer1_m, tau) : surface_travel(tau);
     };
+    auto slopes = [&](double) -> Eigen::Vector2d { return face_slopes; };
+    tt.dish_factors.clear();
+    for (const Eigen::Vector2d& xy : mat_xy) {
+      const double dist = (xy - tt.impact_point_m).norm();
+      tt.dish_factors.push_back(o.mat_marker_motion == MatMarkerMotion::Dish
+                                    ? std::exp(-std::pow((dist - o.dish_centre_m) / o.dish_width_m, 2))
+                                    : 1.0);
+    }
 
     // Contact summary (first contact up to separation).
     {
@@ -726,9 +942,21 @@ SyntheticSession make_session(const SynthOptions& o) {
     tt.grf_n = grf;
     tt.impactor_travel_m.resize(n);
     tt.surface_travel_m.resize(n);
+    tt.layer1_travel_m.resize(n);
+    tt.layer2_travel_m.resize(n);
+    tt.plate_fz_noise_free_n.resize(n);
     for (int j = 0; j < n; ++j) {
-      tt.impactor_travel_m(j) = face_travel(t_s(j) - tt.contact_time_s);
-      tt.surface_travel_m(j) = surface_travel(t_s(j) - tt.contact_time_s);
+      const double tau = t_s(j) - tt.contact_time_s;
+      tt.impactor_travel_m(j) = face_travel(tau);
+      tt.surface_travel_m(j) = surface_travel(tau);
+      tt.layer1_travel_m(j) = layer_travel(sim.layer1_m, tau);
+      tt.layer2_travel_m(j) = layer_travel(sim.layer2_m, tau);
+      double drift = 0.0;
+      if (fx.baseline_drift_whole_record)
+        drift = fx.baseline_drift_n_s * (t_s(j) - t_s(0));
+      else if (t_s(j) > 0.0)
+        drift = fx.baseline_drift_n_s * t_s(j);
+      tt.plate_fz_noise_free_n(j) = scale * grf(j) + drift;
     }
 
     // -- Video.
@@ -739,10 +967,17 @@ SyntheticSession make_session(const SynthOptions& o) {
     tracks.uv_px.setConstant(o.n_frames, 2 * n_pts * n_cam, kNaN);
     tt.frame_force_time_s.resize(o.n_frames);
     tt.markers_lab_m.resize(o.n_frames, 3 * n_pts);
+    tt.digitised_first_frame = -1;
+    tt.digitised_last_frame = -1;
     for (int f = 0; f < o.n_frames; ++f) {
       const double tf = static_cast<double>(f - o.trigger_frame) / o.frame_rate_hz - offset_s;
       tt.frame_force_time_s(f) = tf;
       const double tau = tf - tt.contact_time_s;
+      const bool digitised = tau >= o.digitised_from_s && tau <= o.digitised_to_s;
+      if (digitised) {
+        if (tt.digitised_first_frame < 0) tt.digitised_first_frame = f;
+        tt.digitised_last_frame = f;
+      }
       const double d = face_travel(tau);
       const double st = surface_travel(tau);
       const Eigen::Vector2d sl = slopes(tau);
@@ -751,7 +986,11 @@ SyntheticSession make_session(const SynthOptions& o) {
       std::vector<Eigen::Vector3d> pts;
       pts.push_back(face + rot * base_offset[0]);
       pts.push_back(face + rot * base_offset[1]);
-      for (const Eigen::Vector2d& xy : mat_xy) pts.emplace_back(xy.x(), xy.y(), mat_top_m - st);
+      const double top = top_layer_travel(tau);
+      for (int k = 0; k < 4; ++k) {
+        const double travel = o.mat_marker_motion == MatMarkerMotion::Dish ? tt.dish_factors[k] * top : st;
+        pts.emplace_back(mat_xy[k].x(), mat_xy[k].y(), mat_top_m - travel);
+      }
       for (int p = 0; p < n_pts; ++p) {
         tt.markers_lab_m.row(f).segment<3>(3 * p) = pts[p].transpose();
         for (int c = 0; c < n_cam; ++c) {
@@ -759,7 +998,7 @@ SyntheticSession make_session(const SynthOptions& o) {
           double depth = 0.0;
           pinhole_px(truth.cameras[c], pts[p], &depth);
           const Eigen::Vector2d clean = project_px(truth.cameras[c], pts[p]);
-          if (!in_image(truth.cameras[c], clean, depth)) continue;
+          if (!digitised || !in_image(truth.cameras[c], clean, depth)) continue;
           const Eigen::Vector2d uv = clean + o.pixel_noise_px * e;
           const int col = tracks.column(p, c);
           tracks.uv_px(f, col) = six_decimals(uv.x());
@@ -767,7 +1006,28 @@ SyntheticSession make_session(const SynthOptions& o) {
         }
       }
     }
-    for (const Gap& gap : o.gaps) {
+    require(tt.digitised_first_frame >= 0,
+            fmt::format("trial {}: no video frame lies in the digitised window", tt.id));
+    // Random gaps inside the digitised window (their own stream).
+    std::vector<Gap> trial_gaps = o.gaps;
+    {
+      Rng gr(o.seed, kStreamGaps + ti);
+      const int span = tt.digitised_last_frame - tt.digitised_first_frame + 1;
+      for (int k = 0; k < o.random_gaps_per_trial && span > 2; ++k) {
+        Gap gap;
+        gap.trial = static_cast<int>(ti);
+        gap.point = m.video.points[std::min<std::size_t>(m.video.points.size() - 1,
+                                                         static_cast<std::size_t>(gr.uniform() * n_pts))];
+        gap.n_frames = 1 + std::min(o.gap_max_frames - 1, static_cast<int>(gr.uniform() * o.gap_max_frames));
+        gap.first_frame =
+            tt.digitised_first_frame + std::min(span - 1, static_cast<int>(gr.uniform() * std::max(1, span - gap.n_frames)));
+        gap.camera = gr.uniform() < o.gap_both_cameras_fraction
+                         ? -1
+                         : std::min(n_cam - 1, static_cast<int>(gr.uniform() * n_cam));
+        trial_gaps.push_back(gap);
+      }
+    }
+    for (const Gap& gap : trial_gaps) {
       if (gap.trial != static_cast<int>(ti)) continue;
       const auto it = std::find(tracks.points.begin(), tracks.points.end(), gap.point);
       require(it != tracks.points.end(), fmt::format("gap names unknown point '{}'", gap.point));
@@ -813,7 +1073,7 @@ Json vec(const Eigen::VectorXd& v, double unit = 0.0) {
 }
 Json num(double v) { return std::isfinite(v) ? Json(v) : Json(nullptr); }
 
-Json params_json(const fitting::MatParams& p) {
+Json params_json(const MatParams& p) {
   return Json{{"k1_n_m", p.k1_n_m},
               {"k2_n_m", p.k2_n_m},
               {"k3_n_m", p.k3_n_m},
@@ -826,7 +1086,9 @@ Json params_json(const fitting::MatParams& p) {
               {"k1_cubic_n_m3", p.k1_cubic_n_m3},
               {"r1_unload_n_s_m", p.r1_unload_n_s_m},
               {"maxwell_k_n_m", p.maxwell_k_n_m},
-              {"maxwell_tau_s", p.maxwell_tau_s}};
+              {"maxwell_tau_s", p.maxwell_tau_s},
+              {"k1_hysteresis", p.k1_hysteresis},
+              {"hysteresis_transition_m_s", p.hysteresis_transition_m_s}};
 }
 
 }  // namespace
@@ -838,7 +1100,10 @@ void write_truth_json(const std::string& path, const SynthTruth& t) {
   j["model"] = model_key(t.model);
   j["parameters"] = params_json(t.params);
   j["mat_top_z_m"] = t.mat_top_z_m;
+  j["world"] = t.world;
+  j["physics"] = "samples/generator/physics.h (own equations, Dormand-Prince 5(4); no fitting/ code)";
   j["pixel_noise_px"] = t.pixel_noise_px;
+  j["calibration_pixel_noise_px"] = t.calibration_pixel_noise_px;
   j["channel_noise_n"] = t.channel_noise_n;
   j["points"] = t.points;
   Json layout = Json::object();
@@ -909,11 +1174,18 @@ void write_truth_json(const std::string& path, const SynthTruth& t) {
                       {"model", model_key(tr.model)},
                       {"parameters", params_json(tr.params)},
                       {"gaps", gaps},
+                      {"impact_velocity_after_m_s", num(tr.impact_velocity_after_m_s)},
+                      {"tilt_axis_deg", tr.tilt_axis_deg},
+                      {"dish_factors", tr.dish_factors},
+                      {"digitised_frames", {tr.digitised_first_frame, tr.digitised_last_frame}},
                       {"series",
                        {{"t_s", vec(tr.t_s, 1e-9)},
                         {"grf_n", vec(tr.grf_n, 1e-6)},
                         {"impactor_travel_m", vec(tr.impactor_travel_m, 1e-9)},
-                        {"surface_travel_m", vec(tr.surface_travel_m, 1e-9)}}}});
+                        {"surface_travel_m", vec(tr.surface_travel_m, 1e-9)},
+                        {"layer1_travel_m", vec(tr.layer1_travel_m, 1e-9)},
+                        {"layer2_travel_m", vec(tr.layer2_travel_m, 1e-9)},
+                        {"plate_fz_noise_free_n", vec(tr.plate_fz_noise_free_n, 1e-6)}}}});
   }
   j["trials"] = trials;
 

@@ -12,22 +12,24 @@
 //   thicknesses (0.205 m by default).
 // * Impactor: falls freely under gravity (held at rest before its release,
 //   v^2 / 2g above the mat) until its face centre reaches the mat top; from
-//   then on its face follows fitting::simulate's impactor travel for the
-//   chosen mat model (Mills, Pain & Yeadon 2006, Figure 2), sampled at
-//   10 us and linearly interpolated. The physics is one-dimensional: the
-//   impactor keeps a constant tilt about the lab Y axis (per trial, drawn
-//   from the paper's 2.6 +- 0.87 deg) and a constant horizontal impact point
-//   a few millimetres off the plate centre, but contact starts when the face
-//   centre reaches the mat top.
-// * Markers: two on the impactor base, +-base_marker_spacing_m along the
-//   impactor's own X axis from the face centre and base_marker_height_m
-//   above the face, rotated with the tilt (so the line between them shows
-//   the whole tilt); four on the mat top just outside the footprint edges
-//   (north/south along +-Y, east/west along +-X of the mat centre). The
-//   ASSUMPTION for the mat markers: they move vertically with the top layer
-//   under the impactor (fitting::Simulation::surface_m), i.e. the mat surface
-//   next to the footprint is taken to travel with it; real area-elastic mats
-//   dip less away from the footprint.
+//   then on its face follows the generator's OWN mat physics
+//   (samples/generator/physics.h: its own equations of Models 1-4 and its own
+//   Dormand-Prince integrator; nothing from fitting/), sampled at 10 us and
+//   linearly interpolated. The physics is one-dimensional: the impactor keeps
+//   a constant tilt (per trial |N(2.6, 0.87)| deg, about lab Y or, with
+//   tilt_random_axis, about a random horizontal axis) and a constant
+//   horizontal impact point scattered about the plate centre. After the
+//   rebound it flies freely (and may land again) or, with catch_at_apex, is
+//   caught at the top of its rebound, as a lab's catcher does.
+// * Markers: two on the impactor base, either front/back along the
+//   impactor's X (base_marker_spacing_m) or at the face's diagonal corners
+//   (BaseMarkerLayout::DiagonalCorners), base_marker_height_m above the face
+//   and rotated with the tilt; four on the mat top (north/south along +-Y,
+//   east/west along +-X). MatMarkerMotion::FollowSurface (the classic world)
+//   moves them with the mat top under the impactor; MatMarkerMotion::Dish
+//   (the lab world) puts them 0.22-0.32 m from the mat centre, beside the
+//   footprint, moving with the TOP LAYER's travel times a dish factor
+//   w = exp(-((d - 0.125) / 0.25)^2) of their distance d from the impact point.
 // * Cameras: two pinhole cameras K [R | t] with square pixels, optical axes
 //   camera_angle_deg apart, camera_distance_m from the centre of the
 //   calibrated volume, seen from the mat's -Y side and slightly from above,
@@ -54,16 +56,32 @@
 //   its force-clock time is that minus the true video offset (zero unless
 //   time_offset is injected; results-format.md's video_offset_s).
 //
+// * Digitising (lab world): tracks only from digitised_from_s to
+//   digitised_to_s about contact, NaN elsewhere, with random 1-5-frame gaps
+//   (some in both cameras).
+//
+// Worlds: SynthOptions{} is the CLASSIC world the older tests were written
+// for (mat markers follow the surface, whole records digitised, 1 N noise,
+// 1 s force records). lab_session_options() is the realistic session a lab
+// has (every option above at its lab value: dish markers, corner base
+// markers at face height, 15 mm impact scatter, tilt about a random axis,
+// -0.1..+0.15 s digitised windows with gaps, 5 s force records with 1.5 N
+// noise per channel, 0.3 px marker and 0.2 px calibration noise, the
+// impactor caught at its apex); independent_world_options(seed) adds a
+// random plausible mat and impact speeds; add_random_effects() a random mix
+// of effects (for archives: scripts/make-archive).
+//
 // Injected effects (Effects below) are not declared anywhere in the session
 // folder; only the truth names them, with their magnitudes.
 #include <Eigen/Core>
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <vector>
 
 #include "calibration/calibration.h"
 #include "capture/session.h"
-#include "fitting/models.h"
+#include "samples/generator/physics.h"
 
 namespace dropfit::synth {
 
@@ -73,6 +91,13 @@ struct Effects {
   // calibration / lens_distortion: Bouguet k1 on both cameras (k2 p1 p2 k3 from
   // SynthOptions::extra_distortion).
   double lens_distortion_k1 = 0.0;
+  // calibration / lens_distortion given as its size: the radial k1 that
+  // moves the trial marker farthest from the image centre by this many
+  // pixels (about 1 px in a lab; overrides lens_distortion_k1 when > 0).
+  double lens_distortion_px = 0.0;
+  // calibration / outlier_marker as a labelling slip: in the last camera two
+  // fit markers' image points swapped.
+  bool outlier_swap = false;
   // calibration / outlier_marker: one fit marker misplaced in the last camera
   // by exactly this many pixels, towards the marker whose image distance is
   // closest to it (so a magnitude equal to that distance is a mislabel: the
@@ -90,6 +115,10 @@ struct Effects {
   double k1_cubic_n_m3 = 0.0;
   // mat / hysteresis: MatParams::r1_unload_n_s_m (negative = off).
   double r1_unload_n_s_m = -1.0;
+  // mat / hysteresis as a lower ELASTIC force while unloading: element 1's
+  // elastic force times (1 - h (1 - tanh(d'/v_h)) / 2) (0 = off; 0.1-0.3 real).
+  double hysteresis_h = 0.0;
+  double hysteresis_transition_m_s = 0.05;
   // mat / rate_dependence: Maxwell arm stiffness (0 = off) and time constant.
   double maxwell_k_n_m = 0.0;
   double maxwell_tau_s = 0.01;
@@ -98,7 +127,10 @@ struct Effects {
   double layer_mass_shift_kg = 0.0;
 };
 
-// Sets one effect by its results-format name: lens_distortion (k1),
+// Sets one effect by its results-format name (or a variant): lens_distortion
+// (k1), lens_distortion_px (px at the outermost trial marker), outlier_swap
+// (any non-zero: two fit markers swapped in one camera), hysteresis_elastic
+// (h), ...
 // outlier_marker (px), time_offset (ms), baseline_drift (N/s), force_scale
 // (gain), stiffness_nonlinearity (k1_cubic, N/m^3), hysteresis (r1_unload,
 // N s/m), rate_dependence (Maxwell k, N/m), layer_mass (kg moved to the top
@@ -115,8 +147,18 @@ struct Gap {
   int n_frames = 0;
 };
 
+enum class MatMarkerMotion {
+  FollowSurface,  // classic: the mat top under the impactor
+  Dish,           // lab: top layer travel times exp(-((d - dish_centre) / dish_width)^2)
+};
+enum class BaseMarkerLayout {
+  FrontBack,        // classic: +-base_marker_spacing_m along the impactor's X
+  DiagonalCorners,  // lab: the face's (+x, +y) and (-x, -y) corners
+};
+
 struct SynthOptions {
   std::uint64_t seed = 1;
+  std::string world = "classic";  // a label for the truth file (classic, lab, independent)
   // One trial per velocity (downward speed at first contact), the paper's Table 1.
   std::vector<double> impact_velocities_m_s{4.30, 4.80, 5.25, 5.75, 6.50};
   double gravity_m_s2 = 9.81;
@@ -129,17 +171,26 @@ struct SynthOptions {
   double tilt_mean_deg = 2.6;           // per-trial tilt ~ N(mean, sd), about lab Y, random sign
   double tilt_sd_deg = 0.87;
   double impact_point_sd_m = 0.01;      // impact point's offset from the plate centre, per axis
+  bool tilt_random_axis = false;        // tilt about a random horizontal axis (else about lab Y)
+  BaseMarkerLayout base_marker_layout = BaseMarkerLayout::FrontBack;
+  // After the rebound: caught at its apex (true) or free to land again.
+  bool catch_at_apex = false;
 
   // Mat (declared in the manifest; the true masses are in `params`).
   double mat_length_m = 0.90;
   double mat_width_m = 0.60;
   std::vector<LayerSpec> layers{{"carpet", 0.005, 0.0}, {"stiff", 0.05, 2.44}, {"soft", 0.15, 3.66}};
-  double surface_marker_clearance_m = 0.03;  // outside the footprint edge
+  double surface_marker_clearance_m = 0.03;  // outside the footprint edge (FollowSurface)
+  MatMarkerMotion mat_marker_motion = MatMarkerMotion::FollowSurface;
+  double mat_marker_min_radius_m = 0.22;  // Dish: each marker's distance from the mat centre,
+  double mat_marker_max_radius_m = 0.32;  //   drawn uniformly in this range
+  double dish_centre_m = 0.125;
+  double dish_width_m = 0.25;
 
   // Mat physics. use_default_params: default_mat_params(model, layers).
-  fitting::ModelKind model = fitting::ModelKind::Model4;
+  ModelChoice model = ModelKind::Model4;
   bool use_default_params = true;
-  fitting::MatParams params;
+  MatParams params;
 
   // Cameras.
   int image_width_px = 1024;
@@ -148,13 +199,23 @@ struct SynthOptions {
   double camera_distance_m = 3.0;     // from the centre of the calibrated volume
   double camera_elevation_deg = 12.0; // optical axes look down by this much
   double image_fill = 0.85;           // calibrated volume's half-extent / half-image
-  double pixel_noise_px = 0.25;       // Gaussian SD per coordinate (calibration and tracks)
+  double pixel_noise_px = 0.25;       // Gaussian SD per coordinate (tracks; calibration too unless below)
+  double calibration_pixel_noise_px = -1.0;  // negative: pixel_noise_px
   std::vector<double> extra_distortion{0.0, 0.0, 0.0, 0.0};  // k2 p1 p2 k3, used with lens_distortion
 
   // Video.
   double frame_rate_hz = 1000.0;
   int n_frames = 600;
   int trigger_frame = 200;
+  // Digitised window about first contact (force-clock seconds from contact);
+  // frames outside it are NaN. Infinite = every frame.
+  double digitised_from_s = -std::numeric_limits<double>::infinity();
+  double digitised_to_s = std::numeric_limits<double>::infinity();
+  // Random gaps per trial inside the window: count, 1..gap_max_frames long,
+  // a fraction of them in both cameras.
+  int random_gaps_per_trial = 0;
+  int gap_max_frames = 5;
+  double gap_both_cameras_fraction = 0.3;
 
   // Force plate.
   double force_rate_hz = 1000.0;
@@ -175,7 +236,7 @@ struct SynthOptions {
 // The paper-like default parameters of each model (see synth.cpp for how the
 // Model 4 set was chosen); masses from the declared layers (m1 = all layers
 // but the last, m2 = the last).
-fitting::MatParams default_mat_params(fitting::ModelKind model, const std::vector<LayerSpec>& layers);
+MatParams default_mat_params(ModelChoice model, const std::vector<LayerSpec>& layers);
 
 struct TrueCamera {
   calibration::Camera camera;          // dlt, and distortion with principal point and focal when injected
@@ -220,11 +281,20 @@ struct TrialTruth {
   Eigen::Vector2d impact_point_m = Eigen::Vector2d::Zero();  // face centre's x, y
   Eigen::Vector2d shear_fraction = Eigen::Vector2d::Zero();  // Fx / Fz, Fy / Fz
   Eigen::Matrix<double, 8, 1> channel_offsets_n = Eigen::Matrix<double, 8, 1>::Zero();
-  fitting::ModelKind model = fitting::ModelKind::Model4;
-  fitting::MatParams params;        // true, effects included
+  ModelChoice model = ModelKind::Model4;
+  MatParams params;        // true, effects included
   // On the force clock, one per force sample: the true (unscaled, noise-free)
   // GRF and the impactor-face and mat-surface travel below the mat top.
   Eigen::VectorXd t_s, grf_n, impactor_travel_m, surface_travel_m;
+  // Also per force sample: the mat masses' travel (Model 2: m_eff; 3, 4: m1,
+  // m2) and what the plate reads before noise and zero offsets (gain and
+  // drift included, zeroed Fz).
+  Eigen::VectorXd layer1_travel_m, layer2_travel_m, plate_fz_noise_free_n;
+  double tilt_axis_deg = 90.0;      // the tilt's horizontal axis from lab +X (90 = about +Y)
+  std::vector<double> dish_factors; // per mat marker (1 for FollowSurface)
+  int digitised_first_frame = 0;    // digitised window (inclusive), before gaps
+  int digitised_last_frame = 0;
+  double impact_velocity_after_m_s = 0.0;  // upward speed at separation (NaN if none)
   // Per video frame: its force-clock time and the true 3-D marker positions
   // (n_frames x 3 n_points, point p in columns 3p..3p+2, [video].points order).
   Eigen::VectorXd frame_force_time_s;
@@ -234,8 +304,8 @@ struct TrialTruth {
 
 struct SynthTruth {
   std::uint64_t seed = 0;
-  fitting::ModelKind model = fitting::ModelKind::Model4;
-  fitting::MatParams params;  // true, effects included (the same in every trial)
+  ModelChoice model = ModelKind::Model4;
+  MatParams params;  // true, effects included (the same in every trial)
   std::vector<TrueCamera> cameras;
   std::vector<TrueCalibrationMarker> calibration_markers;
   std::vector<std::string> points;  // [video].points
@@ -243,8 +313,10 @@ struct SynthTruth {
   // centre, X front, Z up; rotated by the tilt), mat markers' lab x, y.
   std::vector<Eigen::Vector3d> base_markers_impactor_m;
   std::vector<Eigen::Vector2d> mat_markers_xy_m;
+  std::string world;
   double mat_top_z_m = 0.0;
   double pixel_noise_px = 0.0;
+  double calibration_pixel_noise_px = 0.0;
   double channel_noise_n = 0.0;
   std::vector<InjectedEffect> effects;
   std::vector<TrialTruth> trials;
@@ -258,6 +330,23 @@ struct SyntheticSession {
 // Throws dropfit::Error on impossible options (no trials, a record too short
 // to hold the trigger, a trial that never reaches the trigger threshold, ...).
 SyntheticSession make_session(const SynthOptions& options);
+
+// ---- Presets ------------------------------------------------------------------
+
+// The realistic session a lab has (see the header comment), with the
+// generator's default Model 4 mat and no effect.
+SynthOptions lab_session_options(std::uint64_t seed = 1);
+// The lab session with a random plausible mat (k1 2e4-1e5 N/m, k2 and k3
+// 5e5-2e6 N/m, cubic 0 or 2e6-8e6 N/m^3, damping tens to hundreds N s/m;
+// drawn until the fastest trial stays within 75 % of the mat thickness) and
+// five impact speeds in 4.0-6.2 m/s. The cubic term is named in the truth
+// as stiffness_nonlinearity.
+SynthOptions independent_world_options(std::uint64_t seed);
+// A random mix of effects (none, one or several), drawn from the seed, at
+// realistic sizes: lens_distortion (~1 px), outlier swap, time_offset,
+// baseline_drift, force_scale, elastic hysteresis, a weak Maxwell arm
+// (25-30 kN/m, tau 20-30 ms), layer_mass.
+void add_random_effects(SynthOptions& options, std::uint64_t seed);
 
 // ---- Pieces, public for the tests -------------------------------------------
 
