@@ -43,8 +43,9 @@ void add_fit(CLI::App& app, CommandContext& /*ctx*/) {
   sub->add_option("--loading-weight", args->loading_weight, "extra weight on the loading phase")
       ->check(CLI::PositiveNumber);
   sub->add_option("--effect", args->effects,
-                  "also fit an effect parameter: k1_cubic_n_m3, r1_unload_n_s_m, maxwell_k_n_m, maxwell_tau_s")
-      ->check(CLI::IsMember({"k1_cubic_n_m3", "r1_unload_n_s_m", "maxwell_k_n_m", "maxwell_tau_s"}));
+                  "also fit an effect parameter: k1_cubic_n_m3, r1_unload_n_s_m, k1_unload_ratio, maxwell_k_n_m, "
+                  "maxwell_tau_s")
+      ->check(CLI::IsMember({"k1_cubic_n_m3", "r1_unload_n_s_m", "maxwell_k_n_m", "maxwell_tau_s", "k1_unload_ratio"}));
   sub->callback([args] {
     const Session session = capture::read_session(args->session);
     const auto cameras = pipeline::cameras_of(pipeline::calibrate_session(session));

@@ -125,6 +125,7 @@ struct ParamSpace {
       else if (n == "r1_unload_n_s_m") { p.r1_unload = v; p.hysteresis = true; }
       else if (n == "maxwell_k_n_m") { p.maxwell_k = v; p.maxwell = true; }
       else if (n == "maxwell_tau_s") { p.maxwell_tau = v; p.maxwell = true; }
+      else if (n == "k1_unload_ratio") { p.unload_ratio = v; p.asymmetric = true; }
     }
     return p;
   }
@@ -134,7 +135,7 @@ struct ParamSpace {
     if (base.has_effects()) return true;
     for (const auto& f : free)
       if (f.name == "k1_cubic_n_m3" || f.name == "r1_unload_n_s_m" || f.name == "maxwell_k_n_m" ||
-          f.name == "maxwell_tau_s")
+          f.name == "maxwell_tau_s" || f.name == "k1_unload_ratio")
         return true;
     return false;
   }
@@ -218,6 +219,16 @@ ParamSpace make_space(const FitOptions& o, double k_eff) {
       s.free.push_back(log_param(name, k_lo, k_hi));
     } else if (name == "maxwell_tau_s") {
       s.free.push_back(log_param(name, 1e-3, 0.3));
+    } else if (name == "k1_unload_ratio") {
+      FreeParam f;
+      f.name = name;
+      f.transform = Transform::Linear;
+      f.scale = 1.0;
+      f.lower = 0.0;
+      f.upper = 0.9;
+      f.start_lo = 0.02;
+      f.start_hi = 0.4;
+      s.free.push_back(f);
     } else {
       throw Error(fmt::format("fit: '{}' is not an effect parameter that can be fitted", name));
     }

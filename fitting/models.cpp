@@ -126,8 +126,10 @@ void validate(ModelKind kind, const MatParams& p, const Impact& imp) {
   }
   if (n == 2) check_finite_nonneg(p.m_eff_kg, "m_eff_kg");
   if (!std::isfinite(p.k1_cubic_n_m3) || !std::isfinite(p.r1_unload_n_s_m) ||
-      !std::isfinite(p.maxwell_k_n_m) || !std::isfinite(p.maxwell_tau_s))
+      !std::isfinite(p.maxwell_k_n_m) || !std::isfinite(p.maxwell_tau_s) || !std::isfinite(p.k1_unload_ratio))
     throw Error("mat effect parameters must be finite");
+  if (!(p.k1_unload_ratio >= 0.0 && p.k1_unload_ratio < 1.0) || !(p.k1_unload_speed_m_s > 0.0))
+    throw Error("mat parameter k1_unload_ratio must be in [0, 1) and k1_unload_speed_m_s positive");
 }
 
 }  // namespace
@@ -199,6 +201,8 @@ double* field(MatParams& p, const std::string& name) {
   if (name == "r1_unload_n_s_m") return &p.r1_unload_n_s_m;
   if (name == "maxwell_k_n_m") return &p.maxwell_k_n_m;
   if (name == "maxwell_tau_s") return &p.maxwell_tau_s;
+  if (name == "k1_unload_ratio") return &p.k1_unload_ratio;
+  if (name == "k1_unload_speed_m_s") return &p.k1_unload_speed_m_s;
   throw Error(fmt::format("unknown mat parameter '{}'", name));
 }
 }  // namespace

@@ -35,7 +35,8 @@
 // Element 1 (k1, r1) of every model can carry extra effects, all off by
 // default: a cubic hardening term, a separate damping while it extends
 // (hysteresis) and a Maxwell arm (rate dependence, relaxation):
-//   F1 = k1 d + k1_cubic d^3 + r(ddot) ddot + Fm,
+//   F1 = (k1 d + k1_cubic d^3) a(ddot) + r(ddot) ddot + Fm,
+//   a(ddot) = 1 - h (1 - tanh(ddot / v_s)) / 2 (elastic asymmetry, h = 0: off),
 //   r(ddot) = r1 while compressing (ddot > 0), r1_unload while extending,
 //   dFm/dt = maxwell_k ddot - Fm / maxwell_tau,
 // d being element 1's compression. Mat layers are joined bilaterally (the
@@ -73,9 +74,15 @@ struct MatParams {
   double r1_unload_n_s_m = -1.0;  // hysteresis: damping of element 1 while it extends
   double maxwell_k_n_m = 0.0;     // rate dependence: Maxwell arm (spring k, time constant tau)
   double maxwell_tau_s = 0.0;     //   in parallel with element 1
+  // Elastic asymmetry (a foam's hysteresis loop): element 1's elastic force
+  // (k1 d + k1_cubic d^3) times 1 - h (1 - tanh(ddot / v_s)) / 2, i.e.
+  // lower by the fraction h while it extends, switching smoothly over the
+  // compression rate v_s (a separate unloading curve, not extra damping).
+  double k1_unload_ratio = 0.0;        // h in [0, 1)
+  double k1_unload_speed_m_s = 0.05;   // v_s
 
   bool has_effects() const {
-    return k1_cubic_n_m3 != 0.0 || r1_unload_n_s_m >= 0.0 ||
+    return k1_cubic_n_m3 != 0.0 || r1_unload_n_s_m >= 0.0 || k1_unload_ratio > 0.0 ||
            (maxwell_k_n_m > 0.0 && maxwell_tau_s > 0.0);
   }
 };

@@ -35,8 +35,9 @@ template <typename T>
 struct ParamsT {
   T k[3], r[3];   // elements 1..3
   T m1, m2;       // mat masses under the layout above (Model 2: m1 = m_eff)
-  T k1_cubic, r1_unload, maxwell_k, maxwell_tau;
-  bool cubic = false, hysteresis = false, maxwell = false;
+  T k1_cubic, r1_unload, maxwell_k, maxwell_tau, unload_ratio;
+  double unload_speed = 0.05;
+  bool cubic = false, hysteresis = false, maxwell = false, asymmetric = false;
 };
 
 // Which nodes each element joins: upper node index (0 impactor, 1 m1,
@@ -379,6 +380,10 @@ template <typename T>
 T element1_force(const ParamsT<T>& p, const T& d, const T& dd, const T& fm) {
   T f = p.k[0] * d;
   if (p.cubic) f += p.k1_cubic * d * d * d;
+  if (p.asymmetric) {
+    using std::tanh;
+    f *= T(1.0) - p.unload_ratio * (T(1.0) - tanh(dd / p.unload_speed)) * 0.5;
+  }
   const T r = (p.hysteresis && scalar_of(dd) < 0.0) ? p.r1_unload : p.r[0];
   f += r * dd;
   if (p.maxwell) f += fm;
@@ -467,11 +472,14 @@ class Rk4Integrator {
   void relax_free_element(Vec& X, double h) const {
     const T e = X(6);
     const T fm = p_.maxwell ? X(7) : T(0.0);
-    T push = (p_.cubic ? T(p_.k1_cubic * e * e * e) : T(0.0)) + fm;
-    T elastic = p_.k[0] * e + push;  // > 0: the element extends
+    // While it relaxes the element extends: its elastic force is the
+    // unloading one.
+    const T a = p_.asymmetric ? T(1.0) - p_.unload_ratio : T(1.0);
+    T push = (p_.cubic ? T(a * p_.k1_cubic * e * e * e) : T(0.0)) + fm;
+    T elastic = a * p_.k[0] * e + push;  // > 0: the element extends
     T r = (p_.hysteresis && scalar_of(elastic) > 0.0) ? p_.r1_unload : p_.r[0];
     if (scalar_of(r) * 50.0 / h < scalar_of(p_.k[0]) || scalar_of(r) <= 0.0) r = p_.k[0] * T(h / 50.0);
-    const T e_new = (e - push * T(h) / r) / (T(1.0) + p_.k[0] * T(h) / r);
+    const T e_new = (e - push * T(h) / r) / (T(1.0) + a * p_.k[0] * T(h) / r);
     if (p_.maxwell) X(7) = (X(7) + p_.maxwell_k * (e_new - e)) / (T(1.0) + T(h) / p_.maxwell_tau);
     X(6) = e_new;
   }
@@ -656,6 +664,9 @@ ParamsT<T> to_params_t(ModelKind kind, const MatParams& mp) {
   p.cubic = mp.k1_cubic_n_m3 != 0.0;
   p.hysteresis = mp.r1_unload_n_s_m >= 0.0;
   p.maxwell = mp.maxwell_k_n_m > 0.0 && mp.maxwell_tau_s > 0.0;
+  p.unload_ratio = T(mp.k1_unload_ratio);
+  p.unload_speed = mp.k1_unload_speed_m_s > 0.0 ? mp.k1_unload_speed_m_s : 0.05;
+  p.asymmetric = mp.k1_unload_ratio > 0.0;
   return p;
 }
 

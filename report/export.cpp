@@ -29,6 +29,8 @@ constexpr Field kFields[] = {
     {"r1_unload_n_s_m", &fitting::MatParams::r1_unload_n_s_m},
     {"maxwell_k_n_m", &fitting::MatParams::maxwell_k_n_m},
     {"maxwell_tau_s", &fitting::MatParams::maxwell_tau_s},
+    {"k1_unload_ratio", &fitting::MatParams::k1_unload_ratio},
+    {"k1_unload_speed_m_s", &fitting::MatParams::k1_unload_speed_m_s},
 };
 
 std::vector<std::string> used_names(fitting::ModelKind kind) {
@@ -61,6 +63,10 @@ std::vector<std::pair<std::string, double>> named_parameters(fitting::ModelKind 
   if (params.maxwell_k_n_m > 0.0 && params.maxwell_tau_s > 0.0) {
     out.emplace_back("maxwell_k_n_m", params.maxwell_k_n_m);
     out.emplace_back("maxwell_tau_s", params.maxwell_tau_s);
+  }
+  if (params.k1_unload_ratio > 0.0) {
+    out.emplace_back("k1_unload_ratio", params.k1_unload_ratio);
+    out.emplace_back("k1_unload_speed_m_s", params.k1_unload_speed_m_s);
   }
   return out;
 }
