@@ -283,7 +283,12 @@ std::string table_report_html(const TableRun& run) {
   doc.figure(svg(plot), "Measured peaks, the trained model's prediction over the velocity range, and each impact's "
                         "peak predicted with that impact left out.");
 
-  if (run.loop_run) append_loop_section(doc, run.loop_baseline_model, run.loop_effects, run.loop_unexplained);
+  if (run.loop_run) {
+    append_loop_section(doc, run.loop_baseline_model, run.loop_effects, run.loop_unexplained);
+    doc.paragraph("The loop's held-out errors come from diagnosis' table stage: Model 1 refitted without each impact, "
+                  "with each velocity allowed its measurement uncertainty (errors in variables), so they differ from "
+                  "the leave-one-out table above, which takes the velocities as exact.");
+  }
   return doc.str();
 }
 
