@@ -38,7 +38,7 @@ void add_calibrate(CLI::App& app, CommandContext& /*ctx*/) {
     const auto result = pipeline::calibrate_session(session, options);
 
     report::OutputSet out;
-    pipeline::add_calibration_outputs(out, result);
+    pipeline::add_calibration_outputs(out, result, manifest.video);
     out.commit(args->out, {args->session});
     fmt::print("{}", result.report());
     fmt::print("wrote {}/calibration.json\n", args->out);

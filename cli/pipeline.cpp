@@ -1,5 +1,6 @@
 #include "cli/pipeline.h"
 
+#include "report/opensim.h"
 #include "report/results.h"
 
 #include <fmt/format.h>
@@ -45,15 +46,20 @@ std::vector<calibration::Camera> cameras_of(const calibration::CalibrationResult
   return cameras;
 }
 
-void add_calibration_outputs(report::OutputSet& out, const calibration::CalibrationResult& result) {
+void add_calibration_outputs(report::OutputSet& out, const calibration::CalibrationResult& result,
+                             const VideoSpec& video) {
   out.add("calibration.json", report::calibration_json(result));
-  out.add("dlt_coefficients.csv", report::dlt_coefficients_csv(cameras_of(result)));
+  const bool bottom_left = video.image_origin == ImageOrigin::BottomLeft && video.image_height_px;
+  out.add("dlt_coefficients.csv",
+          report::dlt_coefficients_csv(cameras_of(result), bottom_left ? *video.image_height_px : 0.0));
 }
 
 void add_reconstruction_outputs(report::OutputSet& out, const std::string& trial_id,
-                                const reconstruction::Trajectories& trajectories) {
+                                const reconstruction::Trajectories& trajectories,
+                                const std::vector<std::string>& point_names) {
   out.add("trials/" + trial_id + "/xyzpts.csv", report::xyzpts_csv(trajectories));
   out.add("trials/" + trial_id + "/residuals.csv", report::residuals_csv(trajectories));
+  out.add("trials/" + trial_id + "/xyzres.csv", report::xyzres_csv(trajectories, point_names));
 }
 
 trial::TrialOptions trial_options(const Manifest& manifest, const std::string& trial_id) {
@@ -98,6 +104,7 @@ TrialOutcome process_trial(const Manifest& manifest, const TrialData& trial,
   outcome.trajectories = reconstruction::reconstruct(cameras, trial.tracks.uv_px, trial.tracks.n_points());
   auto options = trial_options(manifest, trial.spec.id);
   if (max_tilt_deg > 0.0) options.max_tilt_deg = max_tilt_deg;
+  outcome.options = options;
   forceplate::Resultants raw;
   try {
     raw = raw_resultants(manifest, trial.force);
@@ -108,6 +115,10 @@ TrialOutcome process_trial(const Manifest& manifest, const TrialData& trial,
     return outcome;
   }
   outcome.result = trial::analyse(raw, force_options(manifest, trial.force), outcome.trajectories, options);
+  try {  // kept for grf.mot; a record analyse() rejected has none
+    outcome.force = forceplate::process(raw, force_options(manifest, trial.force));
+  } catch (const Error&) {
+  }
   return outcome;
 }
 
@@ -115,7 +126,17 @@ void add_trial_outputs(report::OutputSet& out, const TrialOutcome& outcome) {
   const std::string dir = "trials/" + outcome.result.id + "/";
   out.add(dir + "trial.json", report::trial_json(outcome.result));
   out.add(dir + "series.csv", report::series_csv(outcome.result.series));
-  add_reconstruction_outputs(out, outcome.result.id, outcome.trajectories);
+  add_reconstruction_outputs(out, outcome.result.id, outcome.trajectories, outcome.options.point_names);
+  // OpenSim: markers with frame i at its force-clock time (the nominal video
+  // clock when synchronisation found no offset), and the plate's reaction.
+  const auto& o = outcome.options;
+  const double offset_s = std::isfinite(outcome.result.video_offset_s) ? outcome.result.video_offset_s : 0.0;
+  Eigen::VectorXd frame_times_s(outcome.trajectories.n_frames());
+  for (Eigen::Index i = 0; i < frame_times_s.size(); ++i) {
+    frame_times_s[i] = (static_cast<double>(i) - o.trigger_frame) / o.frame_rate_hz - offset_s;
+  }
+  out.add(dir + "markers.trc", report::markers_trc(outcome.trajectories, o.point_names, frame_times_s, o.frame_rate_hz));
+  if (outcome.force) out.add(dir + "grf.mot", report::grf_mot(*outcome.force));
 }
 
 fitting::TrialData fitting_trial(const Manifest& manifest, const trial::TrialResult& result) {
@@ -222,7 +243,7 @@ RunSummary run_session(const std::string& session_dir, const RunOptions& options
 
   say(summary.session, "calibrating");
   const auto calibration = calibrate_session(session);
-  add_calibration_outputs(out, calibration);
+  add_calibration_outputs(out, calibration, session.manifest.video);
   const auto cameras = cameras_of(calibration);
 
   std::vector<trial::TrialResult> results;

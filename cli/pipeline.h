@@ -2,6 +2,7 @@
 // The wiring between stages: from what capture read to what each stage
 // takes, and on to the results. No numerics here (they live in the stages)
 // and no file writing (the commands commit an OutputSet).
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -28,12 +29,16 @@ calibration::CalibrationResult calibrate_session(const Session& session,
 
 std::vector<calibration::Camera> cameras_of(const calibration::CalibrationResult& result);
 
-// calibration.json and dlt_coefficients.csv.
-void add_calibration_outputs(report::OutputSet& out, const calibration::CalibrationResult& result);
+// calibration.json and dlt_coefficients.csv (the latter in the image origin
+// of `video`: bottom-left coefficients for Argus / DLTdv 7 sessions).
+void add_calibration_outputs(report::OutputSet& out, const calibration::CalibrationResult& result,
+                             const VideoSpec& video = {});
 
-// trials/T/xyzpts.csv and residuals.csv for one trial.
+// trials/T/xyzpts.csv, residuals.csv and xyzres.csv (NAME_dltres, names from
+// `point_names`) for one trial.
 void add_reconstruction_outputs(report::OutputSet& out, const std::string& trial_id,
-                                const reconstruction::Trajectories& trajectories);
+                                const reconstruction::Trajectories& trajectories,
+                                const std::vector<std::string>& point_names = {});
 
 // Trial extraction: the force record through forceplate/, the tracks
 // through reconstruction/, both into trial/. Never throws for a bad trial:
@@ -42,6 +47,8 @@ void add_reconstruction_outputs(report::OutputSet& out, const std::string& trial
 struct TrialOutcome {
   reconstruction::Trajectories trajectories;
   trial::TrialResult result;
+  trial::TrialOptions options;                 // what the trial was analysed with (names, clocks)
+  std::optional<forceplate::ForceTrial> force;  // the zeroed plate record, when it could be processed
 };
 trial::TrialOptions trial_options(const Manifest& manifest, const std::string& trial_id);
 forceplate::ProcessOptions force_options(const Manifest& manifest, const ForceRecord& record);
@@ -49,7 +56,8 @@ forceplate::Resultants raw_resultants(const Manifest& manifest, const ForceRecor
 TrialOutcome process_trial(const Manifest& manifest, const TrialData& trial,
                            const std::vector<calibration::Camera>& cameras, double max_tilt_deg = 0.0);
 
-// trial.json, series.csv, and the trial's 3-D trajectories.
+// trial.json, series.csv, the trial's 3-D trajectories, and the OpenSim
+// files markers.trc (force clock) and grf.mot (when the force was processed).
 void add_trial_outputs(report::OutputSet& out, const TrialOutcome& outcome);
 
 // The fitter's view of a processed trial: times from contact, the plate's

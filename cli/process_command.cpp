@@ -28,7 +28,7 @@ void add_process(CLI::App& app, CommandContext& /*ctx*/) {
     const auto cameras = pipeline::cameras_of(calibration);
 
     report::OutputSet out;
-    pipeline::add_calibration_outputs(out, calibration);
+    pipeline::add_calibration_outputs(out, calibration, session.manifest.video);
     std::vector<trial::TrialResult> results;
     for (const auto& trial : session.trials) {
       auto outcome = pipeline::process_trial(session.manifest, trial, cameras, args->max_tilt_deg);

@@ -23,10 +23,10 @@ void add_reconstruct(CLI::App& app, CommandContext& /*ctx*/) {
     const auto cameras = pipeline::cameras_of(calibration);
 
     report::OutputSet out;
-    pipeline::add_calibration_outputs(out, calibration);
+    pipeline::add_calibration_outputs(out, calibration, session.manifest.video);
     for (const auto& trial : session.trials) {
       const auto trajectories = reconstruction::reconstruct(cameras, trial.tracks.uv_px, trial.tracks.n_points());
-      pipeline::add_reconstruction_outputs(out, trial.spec.id, trajectories);
+      pipeline::add_reconstruction_outputs(out, trial.spec.id, trajectories, session.manifest.video.points);
     }
     out.commit(args->out, {args->session});
     fmt::print("reconstructed {} trials; wrote {}\n", session.trials.size(), args->out);

@@ -119,6 +119,28 @@ FitFile parse_fit_json(const std::string& text, const std::string& path) {
   return file;
 }
 
+namespace {
+// MuJoCo's contacts are soft: a contact's stiffness scales with the
+// effective mass of the bodies it joins over solref's time constant
+// squared. With the default time constant (0.02 s) the impactor sinks into
+// the mat's top (Model 3) or through the light surface body (Model 4). The
+// contact is made nearly hard: time constant two timesteps (MuJoCo's floor)
+// and impedance 0.99, so that the mat's springs, not the contact, set the
+// force; that needs the small timestep.
+constexpr double kTimestepS = 1e-5;
+constexpr double kSurfaceMassKg = 0.01;  // Model 4's element 1 top: light, not zero (MuJoCo needs mass)
+// priority 1: MuJoCo then takes these contact parameters instead of mixing
+// them with the other geom's (a foot's or impactor's defaults).
+constexpr const char* kContactSolver = "priority=\"1\" solref=\"2e-05 1\" solimp=\"0.99 0.99 0.001\"";
+
+std::string joint(const std::string& indent, const std::string& name, double k, double r, double springref) {
+  return fmt::format(
+      "{}<joint name=\"{}\" type=\"slide\" axis=\"0 0 1\" stiffness=\"{:.17g}\" damping=\"{:.17g}\" "
+      "springref=\"{:.17g}\"/>\n",
+      indent, name, k, r, springref);
+}
+}  // namespace
+
 std::string mjcf_xml(fitting::ModelKind kind, const fitting::MatParams& p, const MatGeometry& g) {
   if (kind != fitting::ModelKind::Model3 && kind != fitting::ModelKind::Model4) {
     throw Error(fmt::format("MJCF export is for Models 3 and 4 (layered mats), not {}", fitting::model_name(kind)));
@@ -130,40 +152,46 @@ std::string mjcf_xml(fitting::ModelKind kind, const fitting::MatParams& p, const
   const double k_bottom = four ? p.k3_n_m : p.k2_n_m, r_bottom = four ? p.r3_n_s_m : p.r2_n_s_m;
   const double hx = g.length_m / 2, hy = g.width_m / 2;
   const double hb = g.bottom_thickness_m / 2, ht = g.top_thickness_m / 2;
+  // The mat starts at rest under gravity: each joint's spring already
+  // carries the weight above it at q = 0 (springref = weight / stiffness), so
+  // the bottom joint's force minus the mat's weight is the plate force zeroed
+  // with the mat on it, the models' GRF.
+  const double gravity_m_s2 = 9.81;
+  const double surface_kg = four ? kSurfaceMassKg : 0.0;
+  const double ref_bottom = (p.m1_kg + p.m2_kg + surface_kg) * gravity_m_s2 / k_bottom;
+  const double ref_top = (p.m1_kg + surface_kg) * gravity_m_s2 / k_top;
+  const double ref_surface = surface_kg * gravity_m_s2 / p.k1_n_m;
   std::string xml;
   xml += "<?xml version=\"1.0\" encoding=\"utf-8\"?>\n";
   xml += fmt::format("<!-- dropfit {} landing mat: layers on vertical slide joints; stiffness N/m, damping N s/m, mass kg.\n"
-                     "     Each joint's spring is the model element below that body. -->\n",
+                     "     Each joint's spring is the model element below that body; springref holds the mat's own\n"
+                     "     weight at q = 0. The plate force is mat_bottom_z's passive force minus the mat's weight.\n"
+                     "     Contacts on mat_contact are nearly hard (solref 2e-5 s): keep the timestep at 1e-5 s. -->\n",
                      fitting::model_name(kind));
   xml += "<mujoco model=\"dropfit_mat\">\n";
-  xml += "  <option timestep=\"0.0001\" gravity=\"0 0 -9.81\"/>\n";
+  xml += fmt::format("  <option timestep=\"{:.6g}\" gravity=\"0 0 -{}\" integrator=\"Euler\"/>\n", kTimestepS,
+                     gravity_m_s2);
   xml += "  <worldbody>\n";
   xml += fmt::format("    <body name=\"mat_bottom\" pos=\"0 0 {:.6g}\">\n", hb);
-  xml += fmt::format(
-      "      <joint name=\"mat_bottom_z\" type=\"slide\" axis=\"0 0 1\" stiffness=\"{:.17g}\" damping=\"{:.17g}\"/>\n",
-      k_bottom, r_bottom);
+  xml += joint("      ", "mat_bottom_z", k_bottom, r_bottom, ref_bottom);
   xml += fmt::format("      <inertial pos=\"0 0 0\" mass=\"{:.17g}\" diaginertia=\"1 1 1\"/>\n", p.m2_kg);
   xml += fmt::format("      <geom type=\"box\" size=\"{:.6g} {:.6g} {:.6g}\" contype=\"0\" conaffinity=\"0\" rgba=\"0.3 0.4 0.8 1\"/>\n",
                      hx, hy, hb);
   xml += fmt::format("      <body name=\"mat_top\" pos=\"0 0 {:.6g}\">\n", hb + ht);
-  xml += fmt::format(
-      "        <joint name=\"mat_top_z\" type=\"slide\" axis=\"0 0 1\" stiffness=\"{:.17g}\" damping=\"{:.17g}\"/>\n",
-      k_top, r_top);
+  xml += joint("        ", "mat_top_z", k_top, r_top, ref_top);
   xml += fmt::format("        <inertial pos=\"0 0 0\" mass=\"{:.17g}\" diaginertia=\"1 1 1\"/>\n", p.m1_kg);
   if (four) {
     xml += fmt::format("        <geom type=\"box\" size=\"{:.6g} {:.6g} {:.6g}\" contype=\"0\" conaffinity=\"0\" rgba=\"0.2 0.7 0.3 1\"/>\n",
                        hx, hy, ht);
     xml += fmt::format("        <body name=\"mat_surface\" pos=\"0 0 {:.6g}\">\n", ht);
-    xml += fmt::format(
-        "          <joint name=\"mat_surface_z\" type=\"slide\" axis=\"0 0 1\" stiffness=\"{:.17g}\" damping=\"{:.17g}\"/>\n",
-        p.k1_n_m, p.r1_n_s_m);
-    xml += "          <inertial pos=\"0 0 0\" mass=\"0.01\" diaginertia=\"1e-4 1e-4 1e-4\"/>\n";
-    xml += fmt::format("          <geom name=\"mat_contact\" type=\"box\" size=\"{:.6g} {:.6g} 0.001\" rgba=\"0.9 0.8 0.2 1\"/>\n",
-                       hx, hy);
+    xml += joint("          ", "mat_surface_z", p.k1_n_m, p.r1_n_s_m, ref_surface);
+    xml += fmt::format("          <inertial pos=\"0 0 0\" mass=\"{}\" diaginertia=\"1e-4 1e-4 1e-4\"/>\n", kSurfaceMassKg);
+    xml += fmt::format("          <geom name=\"mat_contact\" type=\"box\" size=\"{:.6g} {:.6g} 0.001\" {} rgba=\"0.9 0.8 0.2 1\"/>\n",
+                       hx, hy, kContactSolver);
     xml += "        </body>\n";
   } else {
-    xml += fmt::format("        <geom name=\"mat_contact\" type=\"box\" size=\"{:.6g} {:.6g} {:.6g}\" rgba=\"0.2 0.7 0.3 1\"/>\n",
-                       hx, hy, ht);
+    xml += fmt::format("        <geom name=\"mat_contact\" type=\"box\" size=\"{:.6g} {:.6g} {:.6g}\" {} rgba=\"0.2 0.7 0.3 1\"/>\n",
+                       hx, hy, ht, kContactSolver);
   }
   xml += "      </body>\n    </body>\n  </worldbody>\n</mujoco>\n";
   return xml;

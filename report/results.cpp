@@ -50,12 +50,25 @@ std::string calibration_json(const calibration::CalibrationResult& result) {
   return doc.dump(2) + "\n";
 }
 
-std::string dlt_coefficients_csv(const std::vector<calibration::Camera>& cameras) {
+calibration::Dlt11 dlt_bottom_left(const calibration::Dlt11& L, double H) {
+  calibration::Dlt11 out = L;
+  out[4] = H * L[8] - L[4];
+  out[5] = H * L[9] - L[5];
+  out[6] = H * L[10] - L[6];
+  out[7] = H - L[7];
+  return out;
+}
+
+std::string dlt_coefficients_csv(const std::vector<calibration::Camera>& cameras, double bottom_left_height_px) {
+  std::vector<calibration::Dlt11> dlts;
+  for (const auto& camera : cameras) {
+    dlts.push_back(bottom_left_height_px > 0.0 ? dlt_bottom_left(camera.dlt, bottom_left_height_px) : camera.dlt);
+  }
   std::string out;
   for (int i = 0; i < 11; ++i) {
-    for (size_t c = 0; c < cameras.size(); ++c) {
+    for (size_t c = 0; c < dlts.size(); ++c) {
       if (c) out += ',';
-      out += fmt::format("{:.15g}", cameras[c].dlt[i]);
+      out += fmt::format("{:.15g}", dlts[c][i]);
     }
     out += '\n';
   }
@@ -86,6 +99,26 @@ std::string residuals_csv(const reconstruction::Trajectories& trajectories) {
   for (int p = 0; p < n_points; ++p) {
     if (p) out += ',';
     out += fmt::format("pt{}_res_px", p + 1);
+  }
+  out += '\n';
+  for (Eigen::Index f = 0; f < trajectories.residual_px.rows(); ++f) {
+    for (int p = 0; p < n_points; ++p) {
+      if (p) out += ',';
+      out += csv_number(trajectories.residual_px(f, p), 6);
+    }
+    out += '\n';
+  }
+  return out;
+}
+
+std::string xyzres_csv(const reconstruction::Trajectories& trajectories,
+                       const std::vector<std::string>& point_names) {
+  const int n_points = trajectories.n_points();
+  std::string out;
+  for (int p = 0; p < n_points; ++p) {
+    if (p) out += ',';
+    const bool named = p < static_cast<int>(point_names.size()) && !point_names[p].empty();
+    out += (named ? point_names[p] : fmt::format("pt{}", p + 1)) + "_dltres";
   }
   out += '\n';
   for (Eigen::Index f = 0; f < trajectories.residual_px.rows(); ++f) {

@@ -16,15 +16,31 @@ namespace dropfit::report {
 // OUT/calibration.json ("dlt11", or "dlt16" when any camera has distortion).
 std::string calibration_json(const calibration::CalibrationResult& result);
 
+// A camera's DLT coefficients (top-left origin, v down) re-expressed for an
+// image whose v is measured upwards from the bottom edge, v' = H - v (Argus,
+// DLTdv 7). With D = L9 X + L10 Y + L11 Z + 1,
+//   v' = H - (L5 X + L6 Y + L7 Z + L8) / D
+//      = ((H L9 - L5) X + (H L10 - L6) Y + (H L11 - L7) Z + (H - L8)) / D,
+// so L5' = H L9 - L5, L6' = H L10 - L6, L7' = H L11 - L7, L8' = H - L8; u and
+// the denominator are unchanged. The map is its own inverse.
+calibration::Dlt11 dlt_bottom_left(const calibration::Dlt11& top_left, double image_height_px);
+
 // The DLT coefficients as an 11 x N headerless CSV, one column per camera
-// (the DLTdv / easyWand / Argus convention).
-std::string dlt_coefficients_csv(const std::vector<calibration::Camera>& cameras);
+// (the DLTdv / easyWand / Argus convention), in the top-left image origin,
+// or in the bottom-left one when bottom_left_height_px > 0 (the height H of
+// the images, [video].image_height_px). Lens distortion is not in this file.
+std::string dlt_coefficients_csv(const std::vector<calibration::Camera>& cameras,
+                                 double bottom_left_height_px = 0.0);
 
 // 3-D trajectories with DLTdv's xyzpts column naming (pt1_X, pt1_Y, pt1_Z,
 // ...), metres in the lab frame; gaps as NaN.
 std::string xyzpts_csv(const reconstruction::Trajectories& trajectories);
 // Per-point RMS reprojection residual, pixels (pt1_res_px, ...).
 std::string residuals_csv(const reconstruction::Trajectories& trajectories);
+// DLTdv's xyzres.csv: the same residuals (pixels) with DLTdv's column names
+// NAME_dltres, NAME from `point_names` (ptK when a name is missing); NaN in gaps.
+std::string xyzres_csv(const reconstruction::Trajectories& trajectories,
+                       const std::vector<std::string>& point_names);
 
 // OUT/trials/T/trial.json and series.csv (t_s,fz_n,impactor_z_m,deformation_m,surface_z_m).
 std::string trial_json(const trial::TrialResult& result);

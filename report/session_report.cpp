@@ -196,18 +196,20 @@ void parameters_section(HtmlDocument& doc, const SessionReport& r) {
   }
 }
 
-void loop_section(HtmlDocument& doc, const SessionReport& r) {
-  if (!r.loop_run) return;
+}  // namespace
+
+void append_loop_section(HtmlDocument& doc, const std::string& baseline_model,
+                         const std::vector<LoopEffect>& effects, bool unexplained) {
   doc.heading("Closing the loop");
   doc.paragraph(fmt::format(
       "Each stage's residual was tested for structure and traced to the effect that explains it; an effect is kept "
       "only when the held-out error drops by more than noise would explain. Baseline mat model: {}.",
-      r.loop_baseline_model));
-  if (r.loop_effects.empty()) doc.paragraph("No effect was added: the residuals show no structure the library explains.");
+      baseline_model));
+  if (effects.empty()) doc.paragraph("No effect was added: the residuals show no structure the library explains.");
   std::vector<std::vector<std::string>> rows;
   BarPlot plot{"Error before and after each added effect", "error", {}, {}, 720, 320};
   BarGroup before{"before", {}, "#9ca3af"}, after{"after", {}, "#059669"};
-  for (const auto& e : r.loop_effects) {
+  for (const auto& e : effects) {
     std::string b, a;
     for (const auto& [k, v] : e.error_before) b += fmt::format("{} {:.3g}; ", k, v);
     for (const auto& [k, v] : e.error_after) a += fmt::format("{} {:.3g}; ", k, v);
@@ -223,11 +225,15 @@ void loop_section(HtmlDocument& doc, const SessionReport& r) {
     plot.groups = {before, after};
     doc.figure(svg(plot), "The first error measure of each effect, before and after it was added.");
   }
-  if (r.loop_unexplained) {
+  if (unexplained) {
     doc.note("Structured residual remains that no known effect explains (unexplained = true).");
   }
 }
 
+namespace {
+void loop_section(HtmlDocument& doc, const SessionReport& r) {
+  if (r.loop_run) append_loop_section(doc, r.loop_baseline_model, r.loop_effects, r.loop_unexplained);
+}
 }  // namespace
 
 std::string session_report_html(const SessionReport& r) {

@@ -10,6 +10,7 @@
 
 #include "calibration/calibration.h"
 #include "fitting/fit.h"
+#include "report/html.h"
 #include "trial/trial.h"
 
 namespace dropfit::report {
@@ -35,5 +36,10 @@ struct SessionReport {
 };
 
 std::string session_report_html(const SessionReport& report);
+
+// The "Closing the loop" section (effects with evidence, error before and
+// after, and a figure), for any report built on HtmlDocument.
+void append_loop_section(HtmlDocument& doc, const std::string& baseline_model, const std::vector<LoopEffect>& effects,
+                         bool unexplained);
 
 }  // namespace dropfit::report

@@ -15,7 +15,12 @@
 #include <string>
 #include <vector>
 
+#include <Eigen/Dense>
+#include <array>
+
+#include "capture/io.h"
 #include "core/error.h"
+#include "samples/generator/synth.h"
 #include "fitting/models.h"
 #include "report/export.h"
 #include "support/cli_harness.h"
@@ -323,6 +328,221 @@ TEST(CliExport, SimulateWithTheFittedParametersReproducesTheFitsCurve) {
   for (std::size_t i = 0; i < series.rows.size() && i < nv.rows.size(); ++i)
     naive_worst = std::max(naive_worst, std::abs(nv.rows[i][sf] - series.rows[i][cf]));
   RecordProperty("without_first_output_worst_pct_of_peak", std::to_string(100.0 * naive_worst / peak));
+}
+
+
+// ---- Version-2 outputs of `dropfit process` on a bottom-left session ----------
+
+std::vector<std::string> split_on(const std::string& line, char sep) {
+  std::vector<std::string> out;
+  std::string f;
+  std::istringstream in(line);
+  while (std::getline(in, f, sep)) out.push_back(f);
+  if (!line.empty() && line.back() == sep) out.emplace_back();
+  return out;
+}
+
+std::vector<std::string> text_lines(const std::string& text) {
+  std::vector<std::string> out;
+  std::istringstream in(text);
+  for (std::string line; std::getline(in, line);) out.push_back(line);
+  return out;
+}
+
+// A bottom-left session (Argus, DLTdv 7): its xypts.csv has v measured up
+// from the bottom edge; `process` writes everything a lab's other tools read.
+class CliVersion2Outputs : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = new TempDir;
+    synth::SynthOptions o = short_session_options();
+    synthetic_ = new synth::SyntheticSession(synth::make_session(o));
+    synthetic_->session.manifest.video.image_origin = ImageOrigin::BottomLeft;
+    synthetic_->session.manifest.video.image_height_px = 1024.0;
+    capture::write_session((*dir_ / "session").string(), synthetic_->session);
+    run_ = new CliRun(run_dropfit({"process", (*dir_ / "session").string(), "--out", (*dir_ / "out").string()},
+                                  dir_->path()));
+  }
+  static void TearDownTestSuite() {
+    delete run_;
+    delete synthetic_;
+    delete dir_;
+  }
+  static fs::path out() { return *dir_ / "out"; }
+  static fs::path session() { return *dir_ / "session"; }
+  static inline TempDir* dir_ = nullptr;
+  static inline synth::SyntheticSession* synthetic_ = nullptr;
+  static inline CliRun* run_ = nullptr;
+};
+
+// The written coefficients, projected through the reconstructed points,
+// must land on the session's own bottom-left pixels: that is what Argus and
+// DLTdv 7 do with them.
+TEST_F(CliVersion2Outputs, DltCoefficientsReproduceTheSessionsBottomLeftPoints) {
+  ASSERT_EQ(run_->exit_code, 0) << run_->describe();
+  const auto lines = text_lines(read_text(out() / "dlt_coefficients.csv"));
+  ASSERT_EQ(lines.size(), 11u) << "11 rows, no header";
+  std::array<calibration::Dlt11, 2> dlt;
+  for (int i = 0; i < 11; ++i) {
+    const auto f = split_on(lines[i], ',');
+    ASSERT_EQ(f.size(), 2u) << "one column per camera, row " << i + 1;
+    for (int c = 0; c < 2; ++c) dlt[c][i] = std::stod(f[c]);  // a header would throw here
+  }
+  const std::string id = synthetic_->session.manifest.trials[0].id;
+  const Table xyz = read_csv(read_text(out() / "trials" / id / "xyzpts.csv"));
+  const Table uv = read_csv(read_text(session() / "trials" / id / "xypts.csv"));  // bottom-left, as written
+  ASSERT_EQ(xyz.rows.size(), uv.rows.size());
+  const int n_points = static_cast<int>(synthetic_->session.manifest.video.points.size());
+  double sum_sq = 0.0, sum_sq_top = 0.0;
+  int n = 0;
+  for (std::size_t f = 0; f < xyz.rows.size(); ++f) {
+    for (int p = 0; p < n_points; ++p) {
+      const Eigen::Vector3d X(xyz.rows[f][3 * p], xyz.rows[f][3 * p + 1], xyz.rows[f][3 * p + 2]);
+      if (!X.allFinite()) continue;
+      for (int c = 0; c < 2; ++c) {
+        const int col = 2 * (p * 2 + c);
+        const Eigen::Vector2d file_px(uv.rows[f][col], uv.rows[f][col + 1]);
+        if (!file_px.allFinite()) continue;
+        const auto& L = dlt[c];
+        const double d = L[8] * X.x() + L[9] * X.y() + L[10] * X.z() + 1.0;
+        const Eigen::Vector2d px((L[0] * X.x() + L[1] * X.y() + L[2] * X.z() + L[3]) / d,
+                                 (L[4] * X.x() + L[5] * X.y() + L[6] * X.z() + L[7]) / d);
+        sum_sq += (px - file_px).squaredNorm();
+        // The same with v read as top-left: what an unconverted file gives.
+        sum_sq_top += std::pow(1024.0 - px.y() - file_px.y(), 2) + std::pow(px.x() - file_px.x(), 2);
+        ++n;
+      }
+    }
+  }
+  ASSERT_GT(n, 500);
+  const double rms_px = std::sqrt(sum_sq / n), rms_top_px = std::sqrt(sum_sq_top / n);
+  RecordProperty("bottom_left_reprojection_rms_px", std::to_string(rms_px));
+  // The pixels carry 0.25 px noise per coordinate; a point seen by two
+  // cameras reprojects to within about that: 0.5 px leaves room, and a wrong
+  // origin is off by hundreds of pixels.
+  EXPECT_LT(rms_px, 0.5);
+  EXPECT_GT(rms_top_px, 50.0);
+}
+
+TEST_F(CliVersion2Outputs, XyzresHoldsTheResidualsUnderThePointNames) {
+  ASSERT_EQ(run_->exit_code, 0) << run_->describe();
+  const std::string id = synthetic_->session.manifest.trials[0].id;
+  const Table res = read_csv(read_text(out() / "trials" / id / "residuals.csv"));
+  const Table xyzres = read_csv(read_text(out() / "trials" / id / "xyzres.csv"));
+  const auto& names = synthetic_->session.manifest.video.points;
+  ASSERT_EQ(xyzres.header.size(), names.size());
+  for (std::size_t p = 0; p < names.size(); ++p) EXPECT_EQ(xyzres.header[p], names[p] + "_dltres");
+  ASSERT_EQ(xyzres.rows.size(), res.rows.size());
+  int finite = 0;
+  for (std::size_t f = 0; f < res.rows.size(); ++f) {
+    for (std::size_t p = 0; p < names.size(); ++p) {
+      const double a = res.rows[f][p], b = xyzres.rows[f][p];
+      EXPECT_EQ(std::isnan(a), std::isnan(b));
+      if (std::isfinite(a)) {
+        EXPECT_DOUBLE_EQ(a, b);
+        EXPECT_LT(b, 2.0) << "pixels, not metres or mm";
+        ++finite;
+      }
+    }
+  }
+  EXPECT_GT(finite, 500);
+}
+
+// markers.trc parsed back: the header, millimetres in OpenSim's frame, and
+// each frame's time on the force clock against the generator's truth.
+TEST_F(CliVersion2Outputs, TrcParsesBackToTheTrajectoriesOnTheForceClock) {
+  ASSERT_EQ(run_->exit_code, 0) << run_->describe();
+  for (std::size_t t = 0; t < synthetic_->truth.trials.size(); ++t) {
+    const auto& truth = synthetic_->truth.trials[t];
+    const std::string id = truth.id;
+    const auto lines = text_lines(read_text(out() / "trials" / id / "markers.trc"));
+    const Table xyz = read_csv(read_text(out() / "trials" / id / "xyzpts.csv"));
+    const auto& names = synthetic_->session.manifest.video.points;
+    ASSERT_EQ(lines.size(), 5 + xyz.rows.size());
+    EXPECT_EQ(split_on(lines[0], '\t')[0], "PathFileType");
+    const auto keys = split_on(lines[1], '\t'), values = split_on(lines[2], '\t');
+    ASSERT_EQ(keys.size(), values.size());
+    std::map<std::string, std::string> header;
+    for (std::size_t i = 0; i < keys.size(); ++i) header[keys[i]] = values[i];
+    EXPECT_EQ(std::stoul(header.at("NumFrames")), xyz.rows.size());
+    EXPECT_EQ(std::stoul(header.at("NumMarkers")), names.size());
+    EXPECT_EQ(header.at("Units"), "mm");
+    EXPECT_DOUBLE_EQ(std::stod(header.at("DataRate")), synthetic_->session.manifest.video.frame_rate_hz);
+    const auto labels = split_on(lines[3], '\t');
+    for (std::size_t p = 0; p < names.size(); ++p) EXPECT_EQ(labels.at(2 + 3 * p), names[p]);
+    double worst_time_s = 0.0;
+    for (std::size_t f = 0; f < xyz.rows.size(); ++f) {
+      const auto row = split_on(lines[5 + f], '\t');
+      ASSERT_EQ(row.size(), 2 + 3 * names.size());
+      // The frame's true force-clock time; synchronisation is good to about
+      // 0.1-0.6 ms with a mat whose top layer has mass (trial/trial.h): 1 ms.
+      worst_time_s = std::max(worst_time_s, std::abs(std::stod(row[1]) - truth.frame_force_time_s[f]));
+      for (std::size_t p = 0; p < names.size(); ++p) {
+        const double X = xyz.rows[f][3 * p], Y = xyz.rows[f][3 * p + 1], Z = xyz.rows[f][3 * p + 2];
+        const double x = std::stod(row[2 + 3 * p]), y = std::stod(row[3 + 3 * p]), z = std::stod(row[4 + 3 * p]);
+        if (std::isnan(X)) {
+          EXPECT_TRUE(std::isnan(x));
+          continue;
+        }
+        // 9 significant digits in both files: 1e-5 mm.
+        ASSERT_NEAR(x, 1e3 * X, 1e-5);
+        ASSERT_NEAR(y, 1e3 * Z, 1e-5);
+        ASSERT_NEAR(z, -1e3 * Y, 1e-5);
+      }
+    }
+    EXPECT_LT(worst_time_s, 1e-3) << id;
+    RecordProperty(id + "_trc_worst_time_error_ms", std::to_string(worst_time_s * 1e3));
+  }
+}
+
+// grf.mot parsed back: the header, vertical force = series.csv's Fz at the
+// same force-clock time, and the generator's centre of pressure and shear.
+TEST_F(CliVersion2Outputs, GrfMotParsesBackToThePlateForceAndTrueCop) {
+  ASSERT_EQ(run_->exit_code, 0) << run_->describe();
+  for (const auto& truth : synthetic_->truth.trials) {
+    const auto lines = text_lines(read_text(out() / "trials" / truth.id / "grf.mot"));
+    ASSERT_GT(lines.size(), 7u);
+    EXPECT_EQ(lines[1], "version=1");
+    const std::size_t n_rows = std::stoul(lines[2].substr(lines[2].find('=') + 1));
+    EXPECT_EQ(lines[3], "nColumns=10");
+    EXPECT_EQ(lines[5], "endheader");
+    ASSERT_EQ(lines.size(), 7 + n_rows);
+    const auto labels = split_on(lines[6], '\t');
+    ASSERT_EQ(labels.size(), 10u);
+    EXPECT_EQ(labels[2], "ground_force_vy");
+    std::map<long, std::vector<double>> by_time;  // keyed by time in microseconds
+    for (std::size_t i = 7; i < lines.size(); ++i) {
+      std::vector<double> v;
+      for (const auto& f : split_on(lines[i], '\t')) v.push_back(std::stod(f));
+      ASSERT_EQ(v.size(), 10u);
+      by_time[std::lround(v[0] * 1e6)] = v;
+    }
+    const Table series = read_csv(read_text(out() / "trials" / truth.id / "series.csv"));
+    int matched = 0;
+    double peak = 0.0;
+    std::vector<double> at_peak;
+    for (const auto& r : series.rows) {
+      const auto it = by_time.find(std::lround(r[0] * 1e6));
+      ASSERT_NE(it, by_time.end()) << "series time " << r[0] << " not in grf.mot";
+      EXPECT_NEAR(it->second[2], r[1], 1e-6 * std::max(1.0, std::abs(r[1])));  // OpenSim y = lab Z = Fz
+      ++matched;
+      if (r[1] > peak) {
+        peak = r[1];
+        at_peak = it->second;
+      }
+    }
+    EXPECT_GT(matched, 20);
+    ASSERT_GT(peak, 1000.0);
+    // At the peak (thousands of newtons against 1 N channel noise) the COP is
+    // the generator's to well under a millimetre: 1 mm. OpenSim's px = lab X,
+    // pz = -lab Y.
+    EXPECT_NEAR(at_peak[4], truth.cop_m.x(), 1e-3);
+    EXPECT_NEAR(at_peak[5], 0.0, 1e-12);
+    EXPECT_NEAR(at_peak[6], -truth.cop_m.y(), 1e-3);
+    // Shear: Fx / Fz and Fy / Fz as generated (noise 1 N on ~7 kN: 1e-3).
+    EXPECT_NEAR(at_peak[1] / at_peak[2], truth.shear_fraction.x(), 1e-3);
+    EXPECT_NEAR(-at_peak[3] / at_peak[2], truth.shear_fraction.y(), 1e-3);
+  }
 }
 
 }  // namespace
