@@ -110,7 +110,11 @@ std::string diagnosis_json(const DiagnosisResult& result) {
   j["unexplained"] = result.unexplained;
   j["remaining"] = nlohmann::ordered_json::array();
   for (const auto& r : result.remaining)
-    j["remaining"].push_back({{"stage", r.stage}, {"name", r.name}, {"description", r.description}});
+    j["remaining"].push_back({{"stage", r.stage},
+                              {"name", r.name},
+                              {"description", r.description},
+                              {"frequency_hz", std::isfinite(r.frequency_hz) ? nlohmann::ordered_json(r.frequency_hz)
+                                                                             : nlohmann::ordered_json(nullptr)}});
   j["rejected"] = nlohmann::ordered_json::array();
   for (const auto& r : result.rejected)
     j["rejected"].push_back({{"stage", r.stage}, {"name", r.name}, {"reason", r.reason}});
@@ -251,7 +255,7 @@ DiagnosisResult diagnose(const Session& session, const DiagnosisOptions& options
       const Eigen::VectorXd f = correction.apply(p.t_s, p.fz_n, p.contact_time_s);
       std::vector<Eigen::Index> keep;
       for (Eigen::Index k = 0; k < p.t_s.size(); ++k)
-        if (p.t_s(k) >= tc && p.t_s(k) <= tc + 0.5) keep.push_back(k);
+        if (p.t_s(k) >= tc - 0.005 && p.t_s(k) <= tc + 0.5) keep.push_back(k);
       if (keep.size() < 3) continue;
       fitting::TrialData td;
       td.id = b.result.id;
@@ -259,6 +263,8 @@ DiagnosisResult diagnose(const Session& session, const DiagnosisOptions& options
       td.impact_velocity_m_s = b.result.impact_velocity_m_s;
       td.impactor_mass_kg = man.impactor.mass_kg;
       td.gravity_m_s2 = man.gravity_m_s2;
+      td.force_noise_n = p.noise_n / correction.gain;
+      td.marker_noise_m = b.result.freefall_rms_m;
       const auto n = static_cast<Eigen::Index>(keep.size());
       td.t_s.resize(n);
       td.grf_n.resize(n);

@@ -90,6 +90,7 @@
 // I/O. diagnosis_json formats the result as OUT/diagnosis.json.
 #include <Eigen/Core>
 #include <functional>
+#include <optional>
 #include <limits>
 #include <string>
 #include <utility>
@@ -130,6 +131,7 @@ struct Remaining {
   std::string stage;
   std::string name;         // a descriptive name, e.g. "periodic_oscillation"
   std::string description;  // one sentence, numbers included
+  double frequency_hz = std::numeric_limits<double>::quiet_NaN();  // its strongest period, when periodic
 };
 
 struct DiagnosisResult {
@@ -294,6 +296,15 @@ struct MatStageOptions {
   // springs in series trade places, and an effect's optimum may lie in the
   // other basin.
   int refit_starts = 4;
+  // The baseline fit when the caller already has it (the main run's Model 4):
+  // it is reused, not refitted.
+  const fitting::FitResult* baseline = nullptr;
+  // A held-out channel counts as explained when its RMS is within this many
+  // of its own measured noise SDs (plate: quiet pre-trigger; markers: the
+  // free-fall fit's RMS).
+  double gate_noise_sd = 2.0;
+  int max_effects = 3;   // forward selection rounds
+  int threads = 2;       // candidate refits in parallel
 };
 
 struct MatDiagnosis {
@@ -303,6 +314,7 @@ struct MatDiagnosis {
   std::vector<std::string> notes;  // what could not be judged, and why
   fitting::MatParams params_before, params_after;
   fitting::FitOptions options_after;  // the baseline options with the kept effects
+  std::optional<fitting::FitResult> fit_after;  // the fit with the kept effects
   ErrorSet error_before, error_after;
   StructureReport structure_before, structure_after;
 };

@@ -26,7 +26,7 @@ namespace dropfit::fitting {
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-constexpr double kRk4Step = 1e-4;
+constexpr double kRk4Step = 2.5e-4;  // RK4 (effects on): at most this, and 0.5 / the fastest rate
 
 inline bool finite_all(double x) { return std::isfinite(x); }
 template <typename J>
@@ -880,8 +880,9 @@ Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, con
   } else {
     std::sort(ranked.begin(), ranked.end());
     std::vector<int> seen_orderings;
+    if (o.initial.k1_n_m > 0.0 && !o.every_ordering) order.push_back(0);
     for (const auto& [c, i] : ranked) {  // the best of each ordering
-      if (!std::isfinite(c)) break;
+      if (!std::isfinite(c) || !o.every_ordering) break;
       const int ord = ordering_of(space, cands[i]);
       if (std::find(seen_orderings.begin(), seen_orderings.end(), ord) != seen_orderings.end()) continue;
       seen_orderings.push_back(ord);
@@ -890,7 +891,8 @@ Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, con
     // and the best overall, up to `starts` runs beyond two (at least one
     // run from every ordering whatever `starts` says).
     for (const auto& [c, i] : ranked) {
-      if (static_cast<int>(order.size()) >= std::max(o.starts, static_cast<int>(seen_orderings.size()) + 2)) break;
+      const int extra = o.every_ordering ? 2 : 0;
+      if (static_cast<int>(order.size()) >= std::max(o.starts, static_cast<int>(seen_orderings.size()) + extra)) break;
       if (std::isfinite(c) && std::find(order.begin(), order.end(), i) == order.end()) order.push_back(i);
     }
     if (o.initial.k1_n_m > 0.0 && std::find(order.begin(), order.end(), 0) == order.end()) order.push_back(0);

@@ -139,6 +139,10 @@ struct FitOptions {
   AnnealOptions anneal;                // for Optimizer::Annealing
   bool polish_annealing = false;       // finish annealing with Ceres
   MatParams initial;                   // if k1_n_m > 0: an extra start (the first)
+  // Levenberg-Marquardt from the best start of every spring ordering (plus
+  // the best overall up to `starts`); false: from `initial` and the best
+  // `starts` - 1 screened starts only (a refit near a known optimum).
+  bool every_ordering = true;
 
   // Bounds (log space). Stiffness: absolute limits, narrowed by physics
   // around the effective stiffness k_eff = F_peak / travel_max of the
