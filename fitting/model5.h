@@ -203,4 +203,12 @@ Model5Result simulate_model5_detailed(const MatParams& params, const Model5Geome
 Simulation simulate_model5(const MatParams& params, const Model5Geometry& geometry,
                            const Impact& impact);
 
+// The former explicit scheme (leapfrog, every force explicit, its step
+// capped by the stiffest element's stability: 3.4 us at the fitter's stiff,
+// damped bounds). Kept as the reference solution (at a tiny max_step_s) and
+// for the before/after benchmark. Samples at i * output_dt_s (ignores
+// first_output_s).
+Model5Result simulate_model5_leapfrog(const MatParams& params, const Model5Geometry& geometry,
+                                      const Impact& impact);
+
 }  // namespace dropfit::fitting

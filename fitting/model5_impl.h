@@ -1,0 +1,503 @@
+#pragma once
+// Model 5 (fitting/model5.h) templated on the scalar type, so that
+// ceres::Jet flows through it (exact derivatives for the fitter), and the
+// integrator that keeps it stable and fast at any stiffness and damping.
+//
+// Integration (see model5.h, "Integration", for the reasoning): the forces
+// split in two parts.
+//   A (stiff, implicit): the three vertical elements of every node column
+//     (k1, r1 contact with the face while it presses; k2, r2; k3, r3), the
+//     impactor's inertia and gravity. Node by node they are local; all
+//     columns under the face share the impactor, an arrow-shaped linear
+//     system solved exactly per stage by eliminating the columns (2 x 2
+//     each) onto the impactor's three coordinates (a 3 x 3 Schur
+//     complement). Integrated by the two-stage, L-stable, stiffly accurate
+//     SDIRK of order 2 (Alexander 1977, SIAM J. Numer. Anal. 14:1006;
+//     gamma = 1 - 1/sqrt 2): stiff damping is damped, not amplified, and the
+//     step does not depend on k or r.
+//   B (explicit): the layers' shear coupling (fixed geometry, not fitted)
+//     and element 1's cubic term, as half kicks before and after each A
+//     step (Strang splitting; each half kick by the explicit midpoint rule,
+//     so shear damping keeps second order). The step is bounded by B's
+//     stability (shear rigidity over node masses), not by k or r.
+// Within a step the contact set (which columns the face presses) and
+// element 1's loading/unloading damping are those found at the step's
+// start, as in the explicit scheme. The linear algebra depends on them
+// only, so it is rebuilt only when they change.
+//
+// For a Jet, branches (contact, unloading) follow the scalar parts, so the
+// derivative is that of the scheme's discrete solution with the contact
+// pattern held: exact for the discrete model between pattern changes.
+#include <Eigen/Core>
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "fitting/model5.h"
+#include "fitting/models_impl.h"
+
+namespace dropfit::fitting {
+
+// The parameters Model 5 uses, in the scalar type of the simulation. The
+// fitter's free parameters (k1..k3, r1..r3, m1, m2; the effects when fitted)
+// are the ones that may carry derivatives.
+template <typename T>
+struct Model5ParamsT {
+  T k1_n_m = T(0.0), k2_n_m = T(0.0), k3_n_m = T(0.0);
+  T r1_n_s_m = T(0.0), r2_n_s_m = T(0.0), r3_n_s_m = T(0.0);
+  T m1_kg = T(0.0), m2_kg = T(0.0);
+  T k1_cubic_n_m3 = T(0.0);
+  T r1_unload_n_s_m = T(0.0);
+  bool cubic = false;       // k1_cubic in play
+  bool hysteresis = false;  // r1_unload replaces r1 while element 1 extends
+};
+
+// From MatParams (throws Error for what Model 5 cannot use, as
+// simulate_model5 does).
+Model5ParamsT<double> model5_params(const MatParams& params);
+
+namespace model5_detail {
+
+// Geometry and timing shared by every scalar type (doubles only).
+struct Layout {
+  int nx = 0, ny = 0, n = 0;           // cells, n = nx * ny; flat index j = ix * ny + iy
+  double dx = 0.0, dy = 0.0, x0 = 0.0, y0 = 0.0, face_area = 0.0;
+  bool framed = false;
+  std::vector<double> w, lx, ly;       // contact weight and lever arms per cell
+  std::vector<int> face;               // cells the face covers (w > 0)
+  // Shear stencil: pairs (a, b) with geometric factor (dy/dx along x, dx/dy
+  // along y); frame links (cell, factor) with the factor already doubled.
+  std::vector<int> pair_a, pair_b;
+  std::vector<double> pair_f;
+  std::vector<int> frame_cell;
+  std::vector<double> frame_f;
+  double inertia_x = 0.0, inertia_y = 0.0;  // impactor's tilt inertias
+  double zc0 = 0.0, tx0 = 0.0, ty0 = 0.0, wx0 = 0.0, wy0 = 0.0;
+  int px = 0, py = 0, px1 = 0, py1 = 0;     // probe under the face centre
+  double fxw = 0.0, fyw = 0.0;
+  Eigen::VectorXd node_x_m, node_y_m;
+  double step_s = 0.0;   // integration step (divides output_dt_s)
+  int n_sub = 1;         // steps per output step
+  int n_first = 0;       // steps to reach first_output_s (0 if it is 0)
+  double first_step_s = 0.0;
+};
+
+// Validates (throws Error) and builds the layout; the parameters' scalar
+// parts choose nothing but are checked.
+Layout make_layout(const Model5ParamsT<double>& params, const Model5Geometry& geometry, const Impact& impact);
+
+// Samples a simulation produces for `impact`: t = first_output_s + i * output_dt_s <= duration_s.
+int sample_count(const Impact& impact);
+
+template <typename T>
+class Integrator {
+ public:
+  Integrator(const Model5ParamsT<T>& p, const Model5Geometry& g, const Impact& imp, const Layout& L)
+      : L_(L), p_(p), M_(imp.mass_kg), g_(imp.gravity_m_s2) {
+    const int n = L.n;
+    const double nc = static_cast<double>(n);
+    k2n_ = p.k2_n_m / nc;
+    r2n_ = p.r2_n_s_m / nc;
+    k3n_ = p.k3_n_m / nc;
+    r3n_ = p.r3_n_s_m / nc;
+    m1n_ = p.m1_kg / nc;
+    m2n_ = p.m2_kg / nc;
+    s1_ = g.shear1_n_m;
+    s2_ = g.shear2_n_m;
+    c1_ = g.shear_damping1_n_s_m;
+    c2_ = g.shear_damping2_n_s_m;
+    r_ext_ = p.hysteresis ? p.r1_unload_n_s_m : p.r1_n_s_m;
+    for (auto* v : {&z1_, &z2_, &v1_, &v2_, &top_, &d_, &dd_, &fr_, &b1_, &b2_})
+      v->assign(n, T(0.0));
+    in_.assign(n, 0);
+    was_.assign(n, 0);
+    unload_.assign(n, 0);
+    cached_in_.assign(n, 2);
+    cached_unload_.assign(n, 2);
+    for (auto* v : {&g1_, &g12_, &g2_, &sa1_, &sa2_, &acol_, &q1r_, &q2r_, &w1r_, &w2r_, &p1_, &p2_, &k1v_, &c1v_})
+      v->assign(n, T(0.0));
+    zc_ = T(L.zc0);
+    tx_ = T(L.tx0);
+    ty_ = T(L.ty0);
+    vc_ = T(imp.velocity_m_s);
+    wx_ = T(L.wx0);
+    wy_ = T(L.wy0);
+    for (int j : L.face) k1v_[j] = p.k1_n_m * L.w[j];
+  }
+
+  // Contact decision at the current instant (call once per step, before
+  // step()): element 1's compression D and rate per face cell, which cells
+  // the face presses (it reaches the element's top and pushes), and the
+  // total contact force. Returns the contact force (N).
+  T contact() {
+    T total = T(0.0);
+    for (int j : L_.face) {
+      const T u = zc_ + tx_ * L_.lx[j] + ty_ * L_.ly[j];
+      const T ud = vc_ + wx_ * L_.lx[j] + wy_ * L_.ly[j];
+      d_[j] = u - z1_[j];
+      dd_[j] = ud - v1_[j];
+      unload_[j] = p_.hysteresis && detail::scalar_of(dd_[j]) < 0.0;
+      T f = k1v_[j] * d_[j] + (unload_[j] ? p_.r1_unload_n_s_m : p_.r1_n_s_m) * L_.w[j] * dd_[j];
+      if (p_.cubic) f += p_.k1_cubic_n_m3 * L_.w[j] * d_[j] * d_[j] * d_[j];
+      fr_[j] = f;
+      was_[j] = in_[j];
+      const bool reach = in_[j] || detail::scalar_of(d_[j]) >= detail::scalar_of(top_[j]);
+      in_[j] = reach && detail::scalar_of(f) >= 0.0;
+      if (in_[j]) total += f;
+    }
+    return total;
+  }
+
+  // Advances by h from the instant contact() examined.
+  void step(double h) {
+    // Element tops (where the face presses or has just left, start from D;
+    // then relax over the step, k1 e + k1_cubic e^3 + r e' = 0).
+    for (int j : L_.face) {
+      if (in_[j] || was_[j]) top_[j] = detail::scalar_of(d_[j]) > 0.0 ? d_[j] : T(0.0);
+      if (detail::scalar_of(r_ext_) > 0.0) {
+        using std::exp;
+        T rate = p_.k1_n_m;
+        if (p_.cubic) rate += p_.k1_cubic_n_m3 * top_[j] * top_[j];
+        top_[j] *= exp(-(T(h) / r_ext_) * rate);
+      } else {
+        top_[j] = T(0.0);
+      }
+    }
+    kick(0.5 * h);
+    implicit_step(h);
+    kick(0.5 * h);
+  }
+
+  // Ground reaction: element 3 of every column plus the frame's share of
+  // the shear links (N, downwards on the plate).
+  T grf() const {
+    T f = T(0.0);
+    for (int j = 0; j < L_.n; ++j) f += k3n_ * z2_[j] + r3n_ * v2_[j];
+    for (std::size_t e = 0; e < L_.frame_cell.size(); ++e) {
+      const int j = L_.frame_cell[e];
+      f += L_.frame_f[e] * (s1_ * z1_[j] + c1_ * v1_[j] + s2_ * z2_[j] + c2_ * v2_[j]);
+    }
+    return f;
+  }
+  // Bilinear among cell centres under the face centre.
+  T probe(const std::vector<T>& z) const {
+    auto at = [&](int ix, int iy) { return z[ix * L_.ny + iy]; };
+    return (1.0 - L_.fyw) * ((1.0 - L_.fxw) * at(L_.px, L_.py) + L_.fxw * at(L_.px1, L_.py)) +
+           L_.fyw * ((1.0 - L_.fxw) * at(L_.px, L_.py1) + L_.fxw * at(L_.px1, L_.py1));
+  }
+  // Element 1's top under the face centre, from the last contact(): the
+  // face where it presses, the relaxing top elsewhere.
+  T surface() const {
+    std::vector<T>& s = scratch_;
+    s.assign(L_.n, T(0.0));
+    for (int j : L_.face) s[j] = in_[j] ? d_[j] : top_[j];
+    return probe(z1_) + probe(s);
+  }
+  // The extra volume under the face where it presses below the top layer.
+  T face_dent_m3() const {
+    T v = T(0.0);
+    for (int j : L_.face) {
+      const T s = in_[j] ? d_[j] : top_[j];
+      if (detail::scalar_of(s) > 0.0) v += L_.w[j] * s;
+    }
+    return v * L_.face_area;
+  }
+  T mat_momentum() const {
+    T m = T(0.0);
+    for (int j = 0; j < L_.n; ++j) m += m1n_ * v1_[j] + m2n_ * v2_[j];
+    return m;
+  }
+
+  const std::vector<T>& z1() const { return z1_; }
+  const std::vector<T>& z2() const { return z2_; }
+  const T& zc() const { return zc_; }
+  const T& vc() const { return vc_; }
+  const T& tilt_x() const { return tx_; }
+  const T& tilt_y() const { return ty_; }
+
+ private:
+  // Shear (and cubic) accelerations added as a kick of length tau: the
+  // explicit midpoint rule in the velocities with positions held.
+  void kick(double tau) {
+    const bool damped = c1_ > 0.0 || c2_ > 0.0;
+    shear_forces(v1_, v2_, b1_, b2_);
+    if (damped) {
+      for (int j = 0; j < L_.n; ++j) {
+        w1r_[j] = v1_[j] + (0.5 * tau) * b1_[j] / m1n_;
+        w2r_[j] = v2_[j] + (0.5 * tau) * b2_[j] / m2n_;
+      }
+      shear_forces(w1r_, w2r_, b1_, b2_);
+    }
+    for (int j = 0; j < L_.n; ++j) {
+      v1_[j] += tau * b1_[j] / m1n_;
+      v2_[j] += tau * b2_[j] / m2n_;
+    }
+    if (p_.cubic) {
+      T fz = T(0.0), fx = T(0.0), fy = T(0.0);
+      for (int j : L_.face) {
+        if (!in_[j]) continue;
+        const T d = zc_ + tx_ * L_.lx[j] + ty_ * L_.ly[j] - z1_[j];
+        const T f = p_.k1_cubic_n_m3 * L_.w[j] * d * d * d;
+        v1_[j] += tau * f / m1n_;
+        fz += f;
+        fx += f * L_.lx[j];
+        fy += f * L_.ly[j];
+      }
+      vc_ -= tau * fz / M_;
+      wx_ -= tau * fx / L_.inertia_x;
+      wy_ -= tau * fy / L_.inertia_y;
+    }
+  }
+
+  // Shear forces of both layers for velocities (u1, u2) at the current positions.
+  void shear_forces(const std::vector<T>& u1, const std::vector<T>& u2, std::vector<T>& f1, std::vector<T>& f2) {
+    std::vector<T>& g1 = q1r_;  // scratch: S z + C v per layer
+    std::vector<T>& g2 = q2r_;
+    for (int j = 0; j < L_.n; ++j) {
+      g1[j] = s1_ * z1_[j] + c1_ * u1[j];
+      g2[j] = s2_ * z2_[j] + c2_ * u2[j];
+      f1[j] = T(0.0);
+      f2[j] = T(0.0);
+    }
+    for (std::size_t e = 0; e < L_.pair_a.size(); ++e) {
+      const int a = L_.pair_a[e], b = L_.pair_b[e];
+      const double f = L_.pair_f[e];
+      const T t1 = f * (g1[b] - g1[a]), t2 = f * (g2[b] - g2[a]);
+      f1[a] += t1;
+      f1[b] -= t1;
+      f2[a] += t2;
+      f2[b] -= t2;
+    }
+    for (std::size_t e = 0; e < L_.frame_cell.size(); ++e) {
+      const int j = L_.frame_cell[e];
+      f1[j] -= L_.frame_f[e] * g1[j];
+      f2[j] -= L_.frame_f[e] * g2[j];
+    }
+  }
+
+  // The stage matrices (M + beta C + beta^2 K), factored by columns, for the
+  // current contact set and unloading pattern; beta = h gamma.
+  void build(double beta) {
+    const int n = L_.n;
+    const T b2 = beta * r2n_ + (beta * beta) * k2n_;
+    const T b3 = beta * r3n_ + (beta * beta) * k3n_;
+    Eigen::Matrix<T, 3, 3> S = Eigen::Matrix<T, 3, 3>::Zero();
+    S(0, 0) = T(M_);
+    S(1, 1) = T(L_.inertia_x);
+    S(2, 2) = T(L_.inertia_y);
+    for (int j = 0; j < n; ++j) {
+      T a = T(0.0);
+      c1v_[j] = T(0.0);
+      if (in_[j]) {
+        c1v_[j] = (unload_[j] ? p_.r1_unload_n_s_m : p_.r1_n_s_m) * L_.w[j];
+        a = beta * c1v_[j] + (beta * beta) * k1v_[j];
+      }
+      const T a11 = m1n_ + a + b2, a22 = m2n_ + b2 + b3;
+      const T inv_det = T(1.0) / (a11 * a22 - b2 * b2);
+      g1_[j] = a22 * inv_det;
+      g12_[j] = b2 * inv_det;
+      g2_[j] = a11 * inv_det;
+      acol_[j] = a;
+      sa1_[j] = a * g1_[j];
+      sa2_[j] = a * g12_[j];
+      if (in_[j]) {
+        const double e[3] = {1.0, L_.lx[j], L_.ly[j]};
+        const T c = a * (T(1.0) - sa1_[j]);
+        for (int r = 0; r < 3; ++r)
+          for (int s = 0; s < 3; ++s) S(r, s) += c * (e[r] * e[s]);
+      }
+    }
+    // Inverse by cofactors (S is symmetric positive definite, 3 x 3).
+    const T c00 = S(1, 1) * S(2, 2) - S(1, 2) * S(2, 1), c01 = S(1, 2) * S(2, 0) - S(1, 0) * S(2, 2),
+            c02 = S(1, 0) * S(2, 1) - S(1, 1) * S(2, 0);
+    const T inv_det_s = T(1.0) / (S(0, 0) * c00 + S(0, 1) * c01 + S(0, 2) * c02);
+    s_inv_(0, 0) = c00 * inv_det_s;
+    s_inv_(1, 0) = c01 * inv_det_s;
+    s_inv_(2, 0) = c02 * inv_det_s;
+    s_inv_(0, 1) = (S(0, 2) * S(2, 1) - S(0, 1) * S(2, 2)) * inv_det_s;
+    s_inv_(1, 1) = (S(0, 0) * S(2, 2) - S(0, 2) * S(2, 0)) * inv_det_s;
+    s_inv_(2, 1) = (S(0, 1) * S(2, 0) - S(0, 0) * S(2, 1)) * inv_det_s;
+    s_inv_(0, 2) = (S(0, 1) * S(1, 2) - S(0, 2) * S(1, 1)) * inv_det_s;
+    s_inv_(1, 2) = (S(0, 2) * S(1, 0) - S(0, 0) * S(1, 2)) * inv_det_s;
+    s_inv_(2, 2) = (S(0, 0) * S(1, 1) - S(0, 1) * S(1, 0)) * inv_det_s;
+    b2_coef_ = b2;
+    cached_beta_ = beta;
+    for (int j = 0; j < n; ++j) {
+      cached_in_[j] = in_[j];
+      cached_unload_[j] = unload_[j];
+    }
+  }
+
+  bool pattern_changed(double beta) const {
+    if (beta != cached_beta_) return true;
+    for (int j : L_.face)
+      if (cached_in_[j] != in_[j] || (in_[j] && cached_unload_[j] != unload_[j])) return true;
+    return cached_in_[0] == 2;
+  }
+
+  // One stage: positions Q = Qr + beta V, velocities V solving
+  // (M + beta C + beta^2 K) V = M Vr + beta F(Qr, 0). Inputs: q*r_, (zr, txr,
+  // tyr) and w*r_, (vr, wxr, wyr); outputs into the state.
+  void stage(double beta, const T& zr, const T& txr, const T& tyr, const T& vr, const T& wxr, const T& wyr) {
+    const int n = L_.n;
+    Eigen::Matrix<T, 3, 1> ry;
+    ry(0) = T(M_) * vr + beta * T(M_ * g_);
+    ry(1) = T(L_.inertia_x) * wxr;
+    ry(2) = T(L_.inertia_y) * wyr;
+    for (int j = 0; j < n; ++j) {
+      const T f12 = k2n_ * (q1r_[j] - q2r_[j]);
+      T f1 = -f12;
+      if (in_[j]) {
+        const T fc = k1v_[j] * (zr + txr * L_.lx[j] + tyr * L_.ly[j] - q1r_[j]);
+        f1 += fc;
+        // Impactor: contact force back, and the column's response to it.
+        const T back = beta * fc;
+        ry(0) -= back;
+        ry(1) -= back * L_.lx[j];
+        ry(2) -= back * L_.ly[j];
+      }
+      const T r1 = m1n_ * w1r_[j] + beta * f1;
+      const T r2 = m2n_ * w2r_[j] + beta * (f12 - k3n_ * q2r_[j]);
+      p1_[j] = g1_[j] * r1 + g12_[j] * r2;
+      p2_[j] = g12_[j] * r1 + g2_[j] * r2;
+      if (in_[j]) {
+        const T c = acol_[j] * p1_[j];
+        ry(0) += c;
+        ry(1) += c * L_.lx[j];
+        ry(2) += c * L_.ly[j];
+      }
+    }
+    const Eigen::Matrix<T, 3, 1> y = s_inv_ * ry;
+    vc_ = y(0);
+    wx_ = y(1);
+    wy_ = y(2);
+    zc_ = zr + beta * vc_;
+    tx_ = txr + beta * wx_;
+    ty_ = tyr + beta * wy_;
+    for (int j = 0; j < n; ++j) {
+      T v1 = p1_[j], v2 = p2_[j];
+      if (in_[j]) {
+        const T u = vc_ + wx_ * L_.lx[j] + wy_ * L_.ly[j];
+        v1 += sa1_[j] * u;
+        v2 += sa2_[j] * u;
+      }
+      v1_[j] = v1;
+      v2_[j] = v2;
+      z1_[j] = q1r_[j] + beta * v1;
+      z2_[j] = q2r_[j] + beta * v2;
+    }
+  }
+
+  // SDIRK2 over h: stage 1 from (q_n, v_n); stage 2 from
+  // Qr = q_n + h (1 - gamma) V1, Vr = v_n + (1 - gamma) / gamma (V1 - v_n).
+  void implicit_step(double h) {
+    static const double gamma = 1.0 - std::sqrt(0.5);
+    const double beta = gamma * h;
+    if (pattern_changed(beta)) build(beta);
+    const int n = L_.n;
+    // Stage 1.
+    std::vector<T>& v1n = b1_;  // scratch: v_n
+    std::vector<T>& v2n = b2_;
+    for (int j = 0; j < n; ++j) {
+      v1n[j] = v1_[j];
+      v2n[j] = v2_[j];
+      q1r_[j] = z1_[j];
+      q2r_[j] = z2_[j];
+      w1r_[j] = v1_[j];
+      w2r_[j] = v2_[j];
+    }
+    const T zn = zc_, txn = tx_, tyn = ty_, vn = vc_, wxn = wx_, wyn = wy_;
+    stage(beta, zn, txn, tyn, vn, wxn, wyn);
+    // Stage 2.
+    const double a21 = h * (1.0 - gamma), ratio = (1.0 - gamma) / gamma;
+    for (int j = 0; j < n; ++j) {
+      q1r_[j] = (z1_[j] - beta * v1_[j]) + a21 * v1_[j];  // q_n + h (1 - gamma) V1
+      q2r_[j] = (z2_[j] - beta * v2_[j]) + a21 * v2_[j];
+      w1r_[j] = v1n[j] + ratio * (v1_[j] - v1n[j]);
+      w2r_[j] = v2n[j] + ratio * (v2_[j] - v2n[j]);
+    }
+    stage(beta, zn + a21 * vc_, txn + a21 * wx_, tyn + a21 * wy_, vn + ratio * (vc_ - vn),
+          wxn + ratio * (wx_ - wxn), wyn + ratio * (wy_ - wyn));
+  }
+
+  const Layout& L_;
+  Model5ParamsT<T> p_;
+  double M_, g_;
+  T k2n_, r2n_, k3n_, r3n_, m1n_, m2n_, r_ext_;
+  double s1_, s2_, c1_, c2_;
+  std::vector<T> z1_, z2_, v1_, v2_, top_, d_, dd_, fr_, b1_, b2_;
+  std::vector<char> in_, was_, unload_, cached_in_, cached_unload_;
+  std::vector<T> g1_, g12_, g2_, sa1_, sa2_, acol_, q1r_, q2r_, w1r_, w2r_, p1_, p2_, k1v_, c1v_;
+  mutable std::vector<T> scratch_;
+  Eigen::Matrix<T, 3, 3> s_inv_;
+  T b2_coef_ = T(0.0);
+  double cached_beta_ = -1.0;
+  T zc_, tx_, ty_, vc_, wx_, wy_;
+};
+
+// Runs an integrator over the samples t_i = first_output_s + i output_dt_s:
+// record.after_step(integrator, contact_force, t) after every step (and at
+// t = 0), record(i, integrator, contact_force) at each sample.
+template <typename T, typename Record>
+void run(Integrator<T>& it, const Layout& L, const Impact& imp, int n_samples, Record& record) {
+  if (n_samples <= 0) return;
+  T f = it.contact();
+  record.after_step(it, f, 0.0);
+  for (int s = 0; s < L.n_first; ++s) {
+    it.step(L.first_step_s);
+    f = it.contact();
+    record.after_step(it, f, (s + 1) * L.first_step_s);
+  }
+  for (int i = 0; i < n_samples; ++i) {
+    if (i > 0) {
+      const double t0 = imp.first_output_s + (i - 1) * imp.output_dt_s;
+      for (int s = 0; s < L.n_sub; ++s) {
+        it.step(L.step_s);
+        f = it.contact();
+        record.after_step(it, f, t0 + (s + 1) * L.step_s);
+      }
+    }
+    record(i, it, f);
+  }
+}
+
+}  // namespace model5_detail
+
+// Model 5 for the fitter: the samples t_i = first_output_s + i output_dt_s,
+// i < n_samples, of the ground reaction force, the impactor face centre's
+// travel and element 1's top under the face centre (as simulate_model5's
+// Simulation::grf_n, impactor_m, surface_m). Any null output is skipped.
+// Throws Error for what simulate_model5 rejects.
+template <typename T>
+void simulate_model5_t(const Model5ParamsT<T>& params, const Model5Geometry& geometry, const Impact& impact,
+                       int n_samples, std::vector<T>* grf, std::vector<T>* impactor, std::vector<T>* surface) {
+  Model5ParamsT<double> scalar;
+  scalar.k1_n_m = detail::scalar_of(params.k1_n_m);
+  scalar.k2_n_m = detail::scalar_of(params.k2_n_m);
+  scalar.k3_n_m = detail::scalar_of(params.k3_n_m);
+  scalar.r1_n_s_m = detail::scalar_of(params.r1_n_s_m);
+  scalar.r2_n_s_m = detail::scalar_of(params.r2_n_s_m);
+  scalar.r3_n_s_m = detail::scalar_of(params.r3_n_s_m);
+  scalar.m1_kg = detail::scalar_of(params.m1_kg);
+  scalar.m2_kg = detail::scalar_of(params.m2_kg);
+  scalar.k1_cubic_n_m3 = detail::scalar_of(params.k1_cubic_n_m3);
+  scalar.r1_unload_n_s_m = detail::scalar_of(params.r1_unload_n_s_m);
+  scalar.cubic = params.cubic;
+  scalar.hysteresis = params.hysteresis;
+  const model5_detail::Layout L = model5_detail::make_layout(scalar, geometry, impact);
+  for (std::vector<T>* v : {grf, impactor, surface})
+    if (v) v->assign(std::max(n_samples, 0), T(0.0));
+  model5_detail::Integrator<T> it(params, geometry, impact, L);
+  struct Rec {
+    std::vector<T>*grf, *impactor, *surface;
+    void operator()(int i, const model5_detail::Integrator<T>& s, const T&) const {
+      if (grf) (*grf)[i] = s.grf();
+      if (impactor) (*impactor)[i] = s.zc();
+      if (surface) (*surface)[i] = s.surface();
+    }
+    void after_step(const model5_detail::Integrator<T>&, const T&, double) const {}
+  } rec{grf, impactor, surface};
+  model5_detail::run(it, L, impact, n_samples, rec);
+}
+
+}  // namespace dropfit::fitting
