@@ -110,12 +110,16 @@ class Integrator {
     for (auto* v : {&z1_, &z2_, &v1_, &v2_, &top_, &d_, &dd_, &fr_, &b1_, &b2_})
       v->assign(n, T(0.0));
     in_.assign(n, 0);
+    impulse_.assign(n, T(0.0));
     was_.assign(n, 0);
     unload_.assign(n, 0);
     cached_in_.assign(n, 2);
     cached_unload_.assign(n, 2);
-    for (auto* v : {&g1_, &g12_, &g2_, &sa1_, &sa2_, &acol_, &q1r_, &q2r_, &w1r_, &w2r_, &p1_, &p2_, &k1v_, &c1v_})
+    for (auto* v : {&g1_, &g12_, &g2_, &sa1_, &sa2_, &acol_, &q1r_, &q2r_, &w1r_, &w2r_, &p1_, &p2_, &k1v_, &c1v_,
+                    &ab1_, &ab2_})
       v->assign(n, T(0.0));
+    for (int l = 0; l + 1 < kStages; ++l)
+      for (auto* v : {&sv1_[l], &sv2_[l], &sa1s_[l], &sa2s_[l]}) v->assign(n, T(0.0));
     zc_ = T(L.zc0);
     tx_ = T(L.tx0);
     ty_ = T(L.ty0);
@@ -141,31 +145,37 @@ class Integrator {
       if (p_.cubic) f += p_.k1_cubic_n_m3 * L_.w[j] * d_[j] * d_[j] * d_[j];
       fr_[j] = f;
       was_[j] = in_[j];
-      const bool reach = in_[j] || detail::scalar_of(d_[j]) >= detail::scalar_of(top_[j]);
-      in_[j] = reach && detail::scalar_of(f) >= 0.0;
-      if (in_[j]) total += f;
+      // Pressed while it was, or once the face reaches the element's top;
+      // released by step() when its impulse pulls.
+      in_[j] = in_[j] || detail::scalar_of(d_[j]) >= detail::scalar_of(top_[j]);
+      if (in_[j] && detail::scalar_of(f) > 0.0) total += f;
     }
     return total;
   }
 
-  // Advances by h from the instant contact() examined.
+  // Advances by h from the instant contact() examined. The contact set is
+  // made consistent with the step (active set, as implicit contact
+  // time-stepping does): a pressed cell whose contact impulse over the step
+  // (the method's quadrature of its stage forces) pulls is released and the
+  // step redone (at most kMaxRedo times). The impulse, not the force at
+  // one instant, decides: with stiff damping the force at an instant
+  // carries the unresolved fast transients, the impulse does not.
   void step(double h) {
-    // Element tops (where the face presses or has just left, start from D;
-    // then relax over the step, k1 e + k1_cubic e^3 + r e' = 0).
-    for (int j : L_.face) {
-      if (in_[j] || was_[j]) top_[j] = detail::scalar_of(d_[j]) > 0.0 ? d_[j] : T(0.0);
-      if (detail::scalar_of(r_ext_) > 0.0) {
-        using std::exp;
-        T rate = p_.k1_n_m;
-        if (p_.cubic) rate += p_.k1_cubic_n_m3 * top_[j] * top_[j];
-        top_[j] *= exp(-(T(h) / r_ext_) * rate);
-      } else {
-        top_[j] = T(0.0);
+    for (int iter = 0;; ++iter) {
+      const bool may_redo = iter < kMaxRedo;
+      if (may_redo) save();
+      advance(h);
+      if (!may_redo) break;
+      bool redo = false;
+      for (int j : L_.face) {
+        if (in_[j] && detail::scalar_of(impulse_[j]) < 0.0) {
+          in_[j] = 0;
+          redo = true;
+        }
       }
+      if (!redo) break;
+      restore();
     }
-    kick(0.5 * h);
-    implicit_step(h);
-    kick(0.5 * h);
   }
 
   // Ground reaction: element 3 of every column plus the frame's share of
@@ -216,21 +226,104 @@ class Integrator {
   const T& tilt_y() const { return ty_; }
 
  private:
-  // Shear (and cubic) accelerations added as a kick of length tau: the
-  // explicit midpoint rule in the velocities with positions held.
-  void kick(double tau) {
-    const bool damped = c1_ > 0.0 || c2_ > 0.0;
-    shear_forces(v1_, v2_, b1_, b2_);
-    if (damped) {
-      for (int j = 0; j < L_.n; ++j) {
-        w1r_[j] = v1_[j] + (0.5 * tau) * b1_[j] / m1n_;
-        w2r_[j] = v2_[j] + (0.5 * tau) * b2_[j] / m2n_;
-      }
-      shear_forces(w1r_, w2r_, b1_, b2_);
+  // One step of length h with the current contact set: element tops relax,
+  // half kick, implicit step, half kick.
+  void advance(double h) {
+    if (h != relax_h_) {
+      relax_h_ = h;
+      using std::exp;
+      relax_ = detail::scalar_of(r_ext_) > 0.0 ? T(exp(-(T(h) / r_ext_) * p_.k1_n_m)) : T(0.0);
     }
-    for (int j = 0; j < L_.n; ++j) {
-      v1_[j] += tau * b1_[j] / m1n_;
-      v2_[j] += tau * b2_[j] / m2n_;
+    for (int j : L_.face) {
+      if (in_[j] || was_[j]) top_[j] = detail::scalar_of(d_[j]) > 0.0 ? d_[j] : T(0.0);
+      if (p_.cubic && detail::scalar_of(r_ext_) > 0.0) {
+        using std::exp;
+        top_[j] *= exp(-(T(h) / r_ext_) * (p_.k1_n_m + p_.k1_cubic_n_m3 * top_[j] * top_[j]));
+      } else {
+        top_[j] *= relax_;
+      }
+    }
+    kick(pending_ + 0.5 * h);
+    implicit_step(h);
+    pending_ = 0.5 * h;
+  }
+
+ public:
+  // Applies the half kick the last step still owes (before reading velocities).
+  void sync() {
+    kick(pending_);
+    pending_ = 0.0;
+  }
+
+ private:
+
+  void save() {
+    z1s_ = z1_;
+    z2s_ = z2_;
+    v1s_ = v1_;
+    v2s_ = v2_;
+    top0_ = top_;
+    ab1s_ = ab1_;
+    ab2s_ = ab2_;
+    pending_s_ = pending_;
+    imp_s_[0] = zc_, imp_s_[1] = tx_, imp_s_[2] = ty_, imp_s_[3] = vc_, imp_s_[4] = wx_, imp_s_[5] = wy_;
+  }
+  void restore() {
+    z1_ = z1s_;
+    z2_ = z2s_;
+    v1_ = v1s_;
+    v2_ = v2s_;
+    top_ = top0_;
+    ab1_ = ab1s_;
+    ab2_ = ab2s_;
+    pending_ = pending_s_;
+    zc_ = imp_s_[0], tx_ = imp_s_[1], ty_ = imp_s_[2], vc_ = imp_s_[3], wx_ = imp_s_[4], wy_ = imp_s_[5];
+  }
+
+  // Shear (and cubic) accelerations as a kick of length tau, positions
+  // held. The shear damping uses the velocity estimate half-way through the
+  // kick from the previous kick's acceleration (one stencil pass per kick;
+  // the same second-order device as the explicit scheme's).
+  void kick(double tau) {
+    if (tau == 0.0) return;
+    const bool damped = c1_ > 0.0 || c2_ > 0.0;
+    const int n = L_.n;
+    std::vector<T>& g1 = b1_;
+    std::vector<T>& g2 = b2_;
+    for (int j = 0; j < n; ++j) {
+      g1[j] = s1_ * z1_[j];
+      g2[j] = s2_ * z2_[j];
+    }
+    if (damped) {
+      for (int j = 0; j < n; ++j) {
+        g1[j] += c1_ * (v1_[j] + (0.5 * tau) * ab1_[j]);
+        g2[j] += c2_ * (v2_[j] + (0.5 * tau) * ab2_[j]);
+      }
+    }
+    for (int j = 0; j < n; ++j) {
+      ab1_[j] = T(0.0);
+      ab2_[j] = T(0.0);
+    }
+    for (std::size_t e = 0; e < L_.pair_a.size(); ++e) {
+      const int a = L_.pair_a[e], b = L_.pair_b[e];
+      const double f = L_.pair_f[e];
+      const T t1 = f * (g1[b] - g1[a]), t2 = f * (g2[b] - g2[a]);
+      ab1_[a] += t1;
+      ab1_[b] -= t1;
+      ab2_[a] += t2;
+      ab2_[b] -= t2;
+    }
+    for (std::size_t e = 0; e < L_.frame_cell.size(); ++e) {
+      const int j = L_.frame_cell[e];
+      ab1_[j] -= L_.frame_f[e] * g1[j];
+      ab2_[j] -= L_.frame_f[e] * g2[j];
+    }
+    const T im1 = T(1.0) / m1n_, im2 = T(1.0) / m2n_;
+    for (int j = 0; j < n; ++j) {
+      ab1_[j] *= im1;
+      ab2_[j] *= im2;
+      v1_[j] += tau * ab1_[j];
+      v2_[j] += tau * ab2_[j];
     }
     if (p_.cubic) {
       T fz = T(0.0), fx = T(0.0), fy = T(0.0);
@@ -238,7 +331,7 @@ class Integrator {
         if (!in_[j]) continue;
         const T d = zc_ + tx_ * L_.lx[j] + ty_ * L_.ly[j] - z1_[j];
         const T f = p_.k1_cubic_n_m3 * L_.w[j] * d * d * d;
-        v1_[j] += tau * f / m1n_;
+        v1_[j] += tau * f * im1;
         fz += f;
         fx += f * L_.lx[j];
         fy += f * L_.ly[j];
@@ -249,49 +342,33 @@ class Integrator {
     }
   }
 
-  // Shear forces of both layers for velocities (u1, u2) at the current positions.
-  void shear_forces(const std::vector<T>& u1, const std::vector<T>& u2, std::vector<T>& f1, std::vector<T>& f2) {
-    std::vector<T>& g1 = q1r_;  // scratch: S z + C v per layer
-    std::vector<T>& g2 = q2r_;
-    for (int j = 0; j < L_.n; ++j) {
-      g1[j] = s1_ * z1_[j] + c1_ * u1[j];
-      g2[j] = s2_ * z2_[j] + c2_ * u2[j];
-      f1[j] = T(0.0);
-      f2[j] = T(0.0);
-    }
-    for (std::size_t e = 0; e < L_.pair_a.size(); ++e) {
-      const int a = L_.pair_a[e], b = L_.pair_b[e];
-      const double f = L_.pair_f[e];
-      const T t1 = f * (g1[b] - g1[a]), t2 = f * (g2[b] - g2[a]);
-      f1[a] += t1;
-      f1[b] -= t1;
-      f2[a] += t2;
-      f2[b] -= t2;
-    }
-    for (std::size_t e = 0; e < L_.frame_cell.size(); ++e) {
-      const int j = L_.frame_cell[e];
-      f1[j] -= L_.frame_f[e] * g1[j];
-      f2[j] -= L_.frame_f[e] * g2[j];
-    }
-  }
-
-  // The stage matrices (M + beta C + beta^2 K), factored by columns, for the
+  // The stage matrix (M + beta C + beta^2 K), factored by columns, for the
   // current contact set and unloading pattern; beta = h gamma.
   void build(double beta) {
-    const int n = L_.n;
     const T b2 = beta * r2n_ + (beta * beta) * k2n_;
     const T b3 = beta * r3n_ + (beta * beta) * k3n_;
     Eigen::Matrix<T, 3, 3> S = Eigen::Matrix<T, 3, 3>::Zero();
     S(0, 0) = T(M_);
     S(1, 1) = T(L_.inertia_x);
     S(2, 2) = T(L_.inertia_y);
-    for (int j = 0; j < n; ++j) {
-      T a = T(0.0);
-      c1v_[j] = T(0.0);
-      if (in_[j]) {
-        c1v_[j] = (unload_[j] ? p_.r1_unload_n_s_m : p_.r1_n_s_m) * L_.w[j];
-        a = beta * c1v_[j] + (beta * beta) * k1v_[j];
+    {  // free columns share one 2 x 2 inverse
+      const T a11 = m1n_ + b2, a22 = m2n_ + b2 + b3;
+      const T inv_det = T(1.0) / (a11 * a22 - b2 * b2);
+      fg1_ = a22 * inv_det;
+      fg12_ = b2 * inv_det;
+      fg2_ = a11 * inv_det;
+    }
+    coupled_.clear();
+    free_.clear();
+    for (int j = 0; j < L_.n; ++j) {
+      if (!in_[j]) {
+        free_.push_back(j);
+        continue;
       }
+      coupled_.push_back(j);
+      const T c1 = (unload_[j] ? p_.r1_unload_n_s_m : p_.r1_n_s_m) * L_.w[j];
+      c1v_[j] = c1;
+      const T a = beta * c1 + (beta * beta) * k1v_[j];
       const T a11 = m1n_ + a + b2, a22 = m2n_ + b2 + b3;
       const T inv_det = T(1.0) / (a11 * a22 - b2 * b2);
       g1_[j] = a22 * inv_det;
@@ -300,12 +377,10 @@ class Integrator {
       acol_[j] = a;
       sa1_[j] = a * g1_[j];
       sa2_[j] = a * g12_[j];
-      if (in_[j]) {
-        const double e[3] = {1.0, L_.lx[j], L_.ly[j]};
-        const T c = a * (T(1.0) - sa1_[j]);
-        for (int r = 0; r < 3; ++r)
-          for (int s = 0; s < 3; ++s) S(r, s) += c * (e[r] * e[s]);
-      }
+      const double e[3] = {1.0, L_.lx[j], L_.ly[j]};
+      const T c = a * (T(1.0) - sa1_[j]);
+      for (int r = 0; r < 3; ++r)
+        for (int q = 0; q < 3; ++q) S(r, q) += c * (e[r] * e[q]);
     }
     // Inverse by cofactors (S is symmetric positive definite, 3 x 3).
     const T c00 = S(1, 1) * S(2, 2) - S(1, 2) * S(2, 1), c01 = S(1, 2) * S(2, 0) - S(1, 0) * S(2, 2),
@@ -320,9 +395,8 @@ class Integrator {
     s_inv_(0, 2) = (S(0, 1) * S(1, 2) - S(0, 2) * S(1, 1)) * inv_det_s;
     s_inv_(1, 2) = (S(0, 2) * S(1, 0) - S(0, 0) * S(1, 2)) * inv_det_s;
     s_inv_(2, 2) = (S(0, 0) * S(1, 1) - S(0, 1) * S(1, 0)) * inv_det_s;
-    b2_coef_ = b2;
     cached_beta_ = beta;
-    for (int j = 0; j < n; ++j) {
+    for (int j = 0; j < L_.n; ++j) {
       cached_in_[j] = in_[j];
       cached_unload_[j] = unload_[j];
     }
@@ -332,92 +406,128 @@ class Integrator {
     if (beta != cached_beta_) return true;
     for (int j : L_.face)
       if (cached_in_[j] != in_[j] || (in_[j] && cached_unload_[j] != unload_[j])) return true;
-    return cached_in_[0] == 2;
+    return false;
   }
 
-  // One stage: positions Q = Qr + beta V, velocities V solving
-  // (M + beta C + beta^2 K) V = M Vr + beta F(Qr, 0). Inputs: q*r_, (zr, txr,
-  // tyr) and w*r_, (vr, wxr, wyr); outputs into the state.
-  void stage(double beta, const T& zr, const T& txr, const T& tyr, const T& vr, const T& wxr, const T& wyr) {
-    const int n = L_.n;
-    Eigen::Matrix<T, 3, 1> ry;
-    ry(0) = T(M_) * vr + beta * T(M_ * g_);
-    ry(1) = T(L_.inertia_x) * wxr;
-    ry(2) = T(L_.inertia_y) * wyr;
-    for (int j = 0; j < n; ++j) {
-      const T f12 = k2n_ * (q1r_[j] - q2r_[j]);
-      T f1 = -f12;
-      if (in_[j]) {
-        const T fc = k1v_[j] * (zr + txr * L_.lx[j] + tyr * L_.ly[j] - q1r_[j]);
-        f1 += fc;
-        // Impactor: contact force back, and the column's response to it.
-        const T back = beta * fc;
-        ry(0) -= back;
-        ry(1) -= back * L_.lx[j];
-        ry(2) -= back * L_.ly[j];
-      }
-      const T r1 = m1n_ * w1r_[j] + beta * f1;
-      const T r2 = m2n_ * w2r_[j] + beta * (f12 - k3n_ * q2r_[j]);
-      p1_[j] = g1_[j] * r1 + g12_[j] * r2;
-      p2_[j] = g12_[j] * r1 + g2_[j] * r2;
-      if (in_[j]) {
-        const T c = acol_[j] * p1_[j];
-        ry(0) += c;
-        ry(1) += c * L_.lx[j];
-        ry(2) += c * L_.ly[j];
-      }
-    }
-    const Eigen::Matrix<T, 3, 1> y = s_inv_ * ry;
-    vc_ = y(0);
-    wx_ = y(1);
-    wy_ = y(2);
-    zc_ = zr + beta * vc_;
-    tx_ = txr + beta * wx_;
-    ty_ = tyr + beta * wy_;
-    for (int j = 0; j < n; ++j) {
-      T v1 = p1_[j], v2 = p2_[j];
-      if (in_[j]) {
-        const T u = vc_ + wx_ * L_.lx[j] + wy_ * L_.ly[j];
-        v1 += sa1_[j] * u;
-        v2 += sa2_[j] * u;
-      }
-      v1_[j] = v1;
-      v2_[j] = v2;
-      z1_[j] = q1r_[j] + beta * v1;
-      z2_[j] = q2r_[j] + beta * v2;
-    }
+  // SDIRK3 (Alexander 1977; Hairer & Wanner, Solving ODEs II, Table IV.6.5):
+  // three stages, L-stable, stiffly accurate, order 3, gamma the root of
+  // x^3 - 3 x^2 + 3/2 x - 1/6 in (1/6, 1/2).
+  static constexpr int kStages = 3;
+  static constexpr double kGamma = 0.435866521508458999;
+  static double coef(int i, int l) {
+    constexpr double g = kGamma;
+    constexpr double a21 = (1.0 - g) / 2.0;
+    constexpr double b1 = -(6.0 * g * g - 16.0 * g + 1.0) / 4.0;
+    constexpr double b2 = (6.0 * g * g - 20.0 * g + 5.0) / 4.0;
+    if (i == 1) return a21;
+    return l == 0 ? b1 : b2;
   }
 
-  // SDIRK2 over h: stage 1 from (q_n, v_n); stage 2 from
-  // Qr = q_n + h (1 - gamma) V1, Vr = v_n + (1 - gamma) / gamma (V1 - v_n).
+  // One implicit step of length h. Stage i: positions Q = Qr + beta V,
+  // velocities V from (M + beta C + beta^2 K) V = M Vr + beta F(Qr, 0), with
+  // Qr = q_n + h sum_l a_il V_l and Vr = v_n + h sum_l a_il A_l (A_l the
+  // stage accelerations, (V_l - Vr_l) / beta); the last stage is the step.
   void implicit_step(double h) {
-    static const double gamma = 1.0 - std::sqrt(0.5);
-    const double beta = gamma * h;
+    const double beta = kGamma * h;
     if (pattern_changed(beta)) build(beta);
-    const int n = L_.n;
-    // Stage 1.
-    std::vector<T>& v1n = b1_;  // scratch: v_n
-    std::vector<T>& v2n = b2_;
-    for (int j = 0; j < n; ++j) {
-      v1n[j] = v1_[j];
-      v2n[j] = v2_[j];
-      q1r_[j] = z1_[j];
-      q2r_[j] = z2_[j];
-      w1r_[j] = v1_[j];
-      w2r_[j] = v2_[j];
-    }
     const T zn = zc_, txn = tx_, tyn = ty_, vn = vc_, wxn = wx_, wyn = wy_;
-    stage(beta, zn, txn, tyn, vn, wxn, wyn);
-    // Stage 2.
-    const double a21 = h * (1.0 - gamma), ratio = (1.0 - gamma) / gamma;
-    for (int j = 0; j < n; ++j) {
-      q1r_[j] = (z1_[j] - beta * v1_[j]) + a21 * v1_[j];  // q_n + h (1 - gamma) V1
-      q2r_[j] = (z2_[j] - beta * v2_[j]) + a21 * v2_[j];
-      w1r_[j] = v1n[j] + ratio * (v1_[j] - v1n[j]);
-      w2r_[j] = v2n[j] + ratio * (v2_[j] - v2n[j]);
+    T iv[kStages][3], ia[kStages][3];  // impactor stage velocities / accelerations
+    for (int i = 0; i < kStages; ++i) {
+      const bool last = i + 1 == kStages;
+      double c[kStages] = {0.0, 0.0, 0.0};
+      for (int l = 0; l < i; ++l) c[l] = h * coef(i, l);
+      // Impactor's Qr, Vr.
+      T qy[3] = {zn, txn, tyn}, wy[3] = {vn, wxn, wyn};
+      for (int l = 0; l < i; ++l)
+        for (int r = 0; r < 3; ++r) {
+          qy[r] += c[l] * iv[l][r];
+          wy[r] += c[l] * ia[l][r];
+        }
+      auto node_r = [&](int j, T& q1, T& q2, T& w1, T& w2) {
+        q1 = z1_[j];
+        q2 = z2_[j];
+        w1 = v1_[j];
+        w2 = v2_[j];
+        for (int l = 0; l < i; ++l) {
+          q1 += c[l] * sv1_[l][j];
+          q2 += c[l] * sv2_[l][j];
+          w1 += c[l] * sa1s_[l][j];
+          w2 += c[l] * sa2s_[l][j];
+        }
+      };
+      // Free columns: decoupled, one shared 2 x 2 inverse.
+      for (int j : free_) {
+        T q1, q2, w1, w2;
+        node_r(j, q1, q2, w1, w2);
+        const T f12 = k2n_ * (q1 - q2);
+        const T r1 = m1n_ * w1 - beta * f12;
+        const T r2 = m2n_ * w2 + beta * (f12 - k3n_ * q2);
+        const T V1 = fg1_ * r1 + fg12_ * r2, V2 = fg12_ * r1 + fg2_ * r2;
+        finish(i, last, j, beta, q1, q2, w1, w2, V1, V2);
+      }
+      // Columns the face presses: eliminated onto the impactor.
+      Eigen::Matrix<T, 3, 1> ry;
+      ry(0) = T(M_) * wy[0] + beta * T(M_ * g_);
+      ry(1) = T(L_.inertia_x) * wy[1];
+      ry(2) = T(L_.inertia_y) * wy[2];
+      for (int j : coupled_) {
+        T q1, q2, w1, w2;
+        node_r(j, q1, q2, w1, w2);
+        q1r_[j] = q1;
+        q2r_[j] = q2;
+        w1r_[j] = w1;
+        w2r_[j] = w2;
+        const T f12 = k2n_ * (q1 - q2);
+        const T fc = k1v_[j] * (qy[0] + qy[1] * L_.lx[j] + qy[2] * L_.ly[j] - q1);
+        const T r1 = m1n_ * w1 + beta * (fc - f12);
+        const T r2 = m2n_ * w2 + beta * (f12 - k3n_ * q2);
+        p1_[j] = g1_[j] * r1 + g12_[j] * r2;
+        p2_[j] = g12_[j] * r1 + g2_[j] * r2;
+        const T back = acol_[j] * p1_[j] - beta * fc;
+        ry(0) += back;
+        ry(1) += back * L_.lx[j];
+        ry(2) += back * L_.ly[j];
+      }
+      const Eigen::Matrix<T, 3, 1> y = s_inv_ * ry;
+      for (int r = 0; r < 3; ++r) {
+        iv[i][r] = y(r);
+        ia[i][r] = (y(r) - wy[r]) / beta;
+      }
+      const double bi = i == 0 ? coef(2, 0) : (i == 1 ? coef(2, 1) : kGamma);
+      for (int j : coupled_) {
+        const T u = y(0) + y(1) * L_.lx[j] + y(2) * L_.ly[j];
+        {  // element 1's force at the stage, into the step's impulse
+          const T V1 = p1_[j] + sa1_[j] * u;
+          const T d = qy[0] + qy[1] * L_.lx[j] + qy[2] * L_.ly[j] + beta * u - (q1r_[j] + beta * V1);
+          const T f = k1v_[j] * d + c1v_[j] * (u - V1);
+          impulse_[j] = i == 0 ? bi * f : impulse_[j] + bi * f;
+        }
+        finish(i, last, j, beta, q1r_[j], q2r_[j], w1r_[j], w2r_[j], p1_[j] + sa1_[j] * u, p2_[j] + sa2_[j] * u);
+      }
+      if (last) {
+        zc_ = qy[0] + beta * y(0);
+        tx_ = qy[1] + beta * y(1);
+        ty_ = qy[2] + beta * y(2);
+        vc_ = y(0);
+        wx_ = y(1);
+        wy_ = y(2);
+      }
     }
-    stage(beta, zn + a21 * vc_, txn + a21 * wx_, tyn + a21 * wy_, vn + ratio * (vc_ - vn),
-          wxn + ratio * (wx_ - wxn), wyn + ratio * (wy_ - wyn));
+  }
+
+  void finish(int i, bool last, int j, double beta, const T& q1, const T& q2, const T& w1, const T& w2, const T& V1,
+              const T& V2) {
+    if (last) {
+      z1_[j] = q1 + beta * V1;
+      z2_[j] = q2 + beta * V2;
+      v1_[j] = V1;
+      v2_[j] = V2;
+      return;
+    }
+    sv1_[i][j] = V1;
+    sv2_[i][j] = V2;
+    sa1s_[i][j] = (V1 - w1) / beta;
+    sa2s_[i][j] = (V2 - w2) / beta;
   }
 
   const Layout& L_;
@@ -426,14 +536,28 @@ class Integrator {
   T k2n_, r2n_, k3n_, r3n_, m1n_, m2n_, r_ext_;
   double s1_, s2_, c1_, c2_;
   std::vector<T> z1_, z2_, v1_, v2_, top_, d_, dd_, fr_, b1_, b2_;
+  std::vector<T> impulse_;  // contact impulse / h of the last step, per cell
   std::vector<char> in_, was_, unload_, cached_in_, cached_unload_;
-  std::vector<T> g1_, g12_, g2_, sa1_, sa2_, acol_, q1r_, q2r_, w1r_, w2r_, p1_, p2_, k1v_, c1v_;
+  std::vector<T> g1_, g12_, g2_, sa1_, sa2_, acol_, q1r_, q2r_, w1r_, w2r_, p1_, p2_, k1v_, c1v_, ab1_, ab2_;
+  std::vector<T> sv1_[kStages - 1], sv2_[kStages - 1], sa1s_[kStages - 1], sa2s_[kStages - 1];
+  std::vector<int> coupled_, free_;
+  T fg1_ = T(0.0), fg12_ = T(0.0), fg2_ = T(0.0);
+  double pending_ = 0.0;  // kick owed to the velocities (half the last step)
+  std::vector<T> ab1s_, ab2s_;
+  double pending_s_ = 0.0;
   mutable std::vector<T> scratch_;
+  static constexpr int kMaxRedo = 3;
+  std::vector<T> z1s_, z2s_, v1s_, v2s_, top0_;
+  T imp_s_[6];
+  double relax_h_ = -1.0;
+  T relax_ = T(0.0);
   Eigen::Matrix<T, 3, 3> s_inv_;
   T b2_coef_ = T(0.0);
   double cached_beta_ = -1.0;
   T zc_, tx_, ty_, vc_, wx_, wy_;
 };
+
+constexpr int kStartRefine = 8;
 
 // Runs an integrator over the samples t_i = first_output_s + i output_dt_s:
 // record.after_step(integrator, contact_force, t) after every step (and at
@@ -443,18 +567,28 @@ void run(Integrator<T>& it, const Layout& L, const Impact& imp, int n_samples, R
   if (n_samples <= 0) return;
   T f = it.contact();
   record.after_step(it, f, 0.0);
-  for (int s = 0; s < L.n_first; ++s) {
-    it.step(L.first_step_s);
+  // The first output interval (and the way to first_output_s) in steps
+  // kStartRefine times shorter: the face lands with its full speed on
+  // light cells, a transient as fast as m / r1 that a full step would
+  // smear into the first samples.
+  const int nf = L.n_first * kStartRefine;
+  for (int s = 0; s < nf; ++s) {
+    it.step(L.first_step_s / kStartRefine);
+    if (s + 1 == nf) it.sync();
     f = it.contact();
-    record.after_step(it, f, (s + 1) * L.first_step_s);
+    record.after_step(it, f, (s + 1) * L.first_step_s / kStartRefine);
   }
   for (int i = 0; i < n_samples; ++i) {
     if (i > 0) {
       const double t0 = imp.first_output_s + (i - 1) * imp.output_dt_s;
-      for (int s = 0; s < L.n_sub; ++s) {
-        it.step(L.step_s);
+      const int refine = i == 1 ? kStartRefine : 1;
+      const int n = L.n_sub * refine;
+      const double h = L.step_s / refine;
+      for (int s = 0; s < n; ++s) {
+        it.step(h);
+        if (s + 1 == n) it.sync();
         f = it.contact();
-        record.after_step(it, f, t0 + (s + 1) * L.step_s);
+        record.after_step(it, f, t0 + (s + 1) * h);
       }
     }
     record(i, it, f);
