@@ -28,9 +28,12 @@
 // For a Jet, branches (contact, unloading) follow the scalar parts, so the
 // derivative is that of the scheme's discrete solution with the contact
 // pattern held: exact for the discrete model between pattern changes.
+#include <ceres/jet.h>
+
 #include <Eigen/Core>
 #include <algorithm>
 #include <cmath>
+#include <type_traits>
 #include <vector>
 
 #include "fitting/model5.h"
@@ -88,6 +91,102 @@ Layout make_layout(const Model5ParamsT<double>& params, const Model5Geometry& ge
 
 // Samples a simulation produces for `impact`: t = first_output_s + i * output_dt_s <= duration_s.
 int sample_count(const Impact& impact);
+
+// A 3 x 3 matrix of any scalar (no Eigen traits needed).
+template <typename T>
+struct Small3 {
+  T m[9];
+  T& operator()(int r, int c) { return m[3 * r + c]; }
+  const T& operator()(int r, int c) const { return m[3 * r + c]; }
+};
+
+// Forward-mode dual number with N derivatives: what simulate_model5_t runs
+// on for a ceres::Jet<double, N> (the same arithmetic as the Jet, in plain
+// arrays the compiler inlines; Eigen's 8-vectors behind the Jet were not
+// inlined here and cost 4x more).
+template <int N>
+struct Dual {
+  double a = 0.0;
+  double v[N] = {};
+  Dual() = default;
+  explicit Dual(double x) : a(x) {}
+  Dual& operator+=(const Dual& o) {
+    a += o.a;
+    for (int i = 0; i < N; ++i) v[i] += o.v[i];
+    return *this;
+  }
+  Dual& operator-=(const Dual& o) {
+    a -= o.a;
+    for (int i = 0; i < N; ++i) v[i] -= o.v[i];
+    return *this;
+  }
+  Dual& operator*=(const Dual& o) {
+    for (int i = 0; i < N; ++i) v[i] = v[i] * o.a + a * o.v[i];
+    a *= o.a;
+    return *this;
+  }
+  Dual& operator*=(double s) {
+    a *= s;
+    for (int i = 0; i < N; ++i) v[i] *= s;
+    return *this;
+  }
+};
+template <int N>
+inline Dual<N> operator+(Dual<N> x, const Dual<N>& y) { return x += y; }
+template <int N>
+inline Dual<N> operator-(Dual<N> x, const Dual<N>& y) { return x -= y; }
+template <int N>
+inline Dual<N> operator-(Dual<N> x) {
+  x.a = -x.a;
+  for (int i = 0; i < N; ++i) x.v[i] = -x.v[i];
+  return x;
+}
+template <int N>
+inline Dual<N> operator*(Dual<N> x, const Dual<N>& y) { return x *= y; }
+template <int N>
+inline Dual<N> operator*(Dual<N> x, double s) { return x *= s; }
+template <int N>
+inline Dual<N> operator*(double s, Dual<N> x) { return x *= s; }
+template <int N>
+inline Dual<N> operator+(Dual<N> x, double s) {
+  x.a += s;
+  return x;
+}
+template <int N>
+inline Dual<N> operator+(double s, Dual<N> x) {
+  x.a += s;
+  return x;
+}
+template <int N>
+inline Dual<N> operator-(Dual<N> x, double s) {
+  x.a -= s;
+  return x;
+}
+template <int N>
+inline Dual<N> operator-(double s, const Dual<N>& x) {
+  Dual<N> r = -x;
+  r.a += s;
+  return r;
+}
+template <int N>
+inline Dual<N> operator/(const Dual<N>& x, const Dual<N>& y) {
+  const double inv = 1.0 / y.a;
+  Dual<N> r;
+  r.a = x.a * inv;
+  for (int i = 0; i < N; ++i) r.v[i] = (x.v[i] - r.a * y.v[i]) * inv;
+  return r;
+}
+template <int N>
+inline Dual<N> operator/(const Dual<N>& x, double s) { return x * (1.0 / s); }
+template <int N>
+inline Dual<N> operator/(double s, const Dual<N>& y) { return Dual<N>(s) / y; }
+template <int N>
+inline Dual<N> exp(const Dual<N>& x) {
+  const double e = std::exp(x.a);
+  Dual<N> r = x * e;
+  r.a = e;
+  return r;
+}
 
 template <typename T>
 class Integrator {
@@ -347,7 +446,8 @@ class Integrator {
   void build(double beta) {
     const T b2 = beta * r2n_ + (beta * beta) * k2n_;
     const T b3 = beta * r3n_ + (beta * beta) * k3n_;
-    Eigen::Matrix<T, 3, 3> S = Eigen::Matrix<T, 3, 3>::Zero();
+    Small3<T> S;
+    for (T& x : S.m) x = T(0.0);
     S(0, 0) = T(M_);
     S(1, 1) = T(L_.inertia_x);
     S(2, 2) = T(L_.inertia_y);
@@ -466,10 +566,7 @@ class Integrator {
         finish(i, last, j, beta, q1, q2, w1, w2, V1, V2);
       }
       // Columns the face presses: eliminated onto the impactor.
-      Eigen::Matrix<T, 3, 1> ry;
-      ry(0) = T(M_) * wy[0] + beta * T(M_ * g_);
-      ry(1) = T(L_.inertia_x) * wy[1];
-      ry(2) = T(L_.inertia_y) * wy[2];
+      T ry[3] = {T(M_) * wy[0] + beta * T(M_ * g_), T(L_.inertia_x) * wy[1], T(L_.inertia_y) * wy[2]};
       for (int j : coupled_) {
         T q1, q2, w1, w2;
         node_r(j, q1, q2, w1, w2);
@@ -484,18 +581,19 @@ class Integrator {
         p1_[j] = g1_[j] * r1 + g12_[j] * r2;
         p2_[j] = g12_[j] * r1 + g2_[j] * r2;
         const T back = acol_[j] * p1_[j] - beta * fc;
-        ry(0) += back;
-        ry(1) += back * L_.lx[j];
-        ry(2) += back * L_.ly[j];
+        ry[0] += back;
+        ry[1] += back * L_.lx[j];
+        ry[2] += back * L_.ly[j];
       }
-      const Eigen::Matrix<T, 3, 1> y = s_inv_ * ry;
+      T y[3];
+      for (int r = 0; r < 3; ++r) y[r] = s_inv_(r, 0) * ry[0] + s_inv_(r, 1) * ry[1] + s_inv_(r, 2) * ry[2];
       for (int r = 0; r < 3; ++r) {
-        iv[i][r] = y(r);
-        ia[i][r] = (y(r) - wy[r]) / beta;
+        iv[i][r] = y[r];
+        ia[i][r] = (y[r] - wy[r]) / beta;
       }
       const double bi = i == 0 ? coef(2, 0) : (i == 1 ? coef(2, 1) : kGamma);
       for (int j : coupled_) {
-        const T u = y(0) + y(1) * L_.lx[j] + y(2) * L_.ly[j];
+        const T u = y[0] + y[1] * L_.lx[j] + y[2] * L_.ly[j];
         {  // element 1's force at the stage, into the step's impulse
           const T V1 = p1_[j] + sa1_[j] * u;
           const T d = qy[0] + qy[1] * L_.lx[j] + qy[2] * L_.ly[j] + beta * u - (q1r_[j] + beta * V1);
@@ -505,12 +603,12 @@ class Integrator {
         finish(i, last, j, beta, q1r_[j], q2r_[j], w1r_[j], w2r_[j], p1_[j] + sa1_[j] * u, p2_[j] + sa2_[j] * u);
       }
       if (last) {
-        zc_ = qy[0] + beta * y(0);
-        tx_ = qy[1] + beta * y(1);
-        ty_ = qy[2] + beta * y(2);
-        vc_ = y(0);
-        wx_ = y(1);
-        wy_ = y(2);
+        zc_ = qy[0] + beta * y[0];
+        tx_ = qy[1] + beta * y[1];
+        ty_ = qy[2] + beta * y[2];
+        vc_ = y[0];
+        wx_ = y[1];
+        wy_ = y[2];
       }
     }
   }
@@ -551,7 +649,7 @@ class Integrator {
   T imp_s_[6];
   double relax_h_ = -1.0;
   T relax_ = T(0.0);
-  Eigen::Matrix<T, 3, 3> s_inv_;
+  Small3<T> s_inv_;
   T b2_coef_ = T(0.0);
   double cached_beta_ = -1.0;
   T zc_, tx_, ty_, vc_, wx_, wy_;
@@ -597,14 +695,16 @@ void run(Integrator<T>& it, const Layout& L, const Impact& imp, int n_samples, R
 
 }  // namespace model5_detail
 
-// Model 5 for the fitter: the samples t_i = first_output_s + i output_dt_s,
-// i < n_samples, of the ground reaction force, the impactor face centre's
-// travel and element 1's top under the face centre (as simulate_model5's
-// Simulation::grf_n, impactor_m, surface_m). Any null output is skipped.
-// Throws Error for what simulate_model5 rejects.
+namespace model5_detail {
+
 template <typename T>
-void simulate_model5_t(const Model5ParamsT<T>& params, const Model5Geometry& geometry, const Impact& impact,
-                       int n_samples, std::vector<T>* grf, std::vector<T>* impactor, std::vector<T>* surface) {
+struct IsJet : std::false_type {};
+template <int N>
+struct IsJet<ceres::Jet<double, N>> : std::true_type {};
+
+template <typename T>
+void simulate_plain(const Model5ParamsT<T>& params, const Model5Geometry& geometry, const Impact& impact,
+                    int n_samples, std::vector<T>* grf, std::vector<T>* impactor, std::vector<T>* surface) {
   Model5ParamsT<double> scalar;
   scalar.k1_n_m = detail::scalar_of(params.k1_n_m);
   scalar.k2_n_m = detail::scalar_of(params.k2_n_m);
@@ -618,20 +718,80 @@ void simulate_model5_t(const Model5ParamsT<T>& params, const Model5Geometry& geo
   scalar.r1_unload_n_s_m = detail::scalar_of(params.r1_unload_n_s_m);
   scalar.cubic = params.cubic;
   scalar.hysteresis = params.hysteresis;
-  const model5_detail::Layout L = model5_detail::make_layout(scalar, geometry, impact);
+  const Layout L = make_layout(scalar, geometry, impact);
   for (std::vector<T>* v : {grf, impactor, surface})
     if (v) v->assign(std::max(n_samples, 0), T(0.0));
-  model5_detail::Integrator<T> it(params, geometry, impact, L);
+  Integrator<T> it(params, geometry, impact, L);
   struct Rec {
     std::vector<T>*grf, *impactor, *surface;
-    void operator()(int i, const model5_detail::Integrator<T>& s, const T&) const {
+    void operator()(int i, const Integrator<T>& s, const T&) const {
       if (grf) (*grf)[i] = s.grf();
       if (impactor) (*impactor)[i] = s.zc();
       if (surface) (*surface)[i] = s.surface();
     }
-    void after_step(const model5_detail::Integrator<T>&, const T&, double) const {}
+    void after_step(const Integrator<T>&, const T&, double) const {}
   } rec{grf, impactor, surface};
-  model5_detail::run(it, L, impact, n_samples, rec);
+  run(it, L, impact, n_samples, rec);
+}
+
+// A ceres::Jet runs on Dual (see there) and is copied back.
+template <int N>
+void simulate_jet(const Model5ParamsT<ceres::Jet<double, N>>& params, const Model5Geometry& geometry,
+                  const Impact& impact, int n_samples, std::vector<ceres::Jet<double, N>>* grf,
+                  std::vector<ceres::Jet<double, N>>* impactor, std::vector<ceres::Jet<double, N>>* surface) {
+  using J = ceres::Jet<double, N>;
+  using D = Dual<N>;
+  auto to_dual = [](const J& j) {
+    D d(j.a);
+    for (int i = 0; i < N; ++i) d.v[i] = j.v[i];
+    return d;
+  };
+  Model5ParamsT<D> p;
+  p.k1_n_m = to_dual(params.k1_n_m);
+  p.k2_n_m = to_dual(params.k2_n_m);
+  p.k3_n_m = to_dual(params.k3_n_m);
+  p.r1_n_s_m = to_dual(params.r1_n_s_m);
+  p.r2_n_s_m = to_dual(params.r2_n_s_m);
+  p.r3_n_s_m = to_dual(params.r3_n_s_m);
+  p.m1_kg = to_dual(params.m1_kg);
+  p.m2_kg = to_dual(params.m2_kg);
+  p.k1_cubic_n_m3 = to_dual(params.k1_cubic_n_m3);
+  p.r1_unload_n_s_m = to_dual(params.r1_unload_n_s_m);
+  p.cubic = params.cubic;
+  p.hysteresis = params.hysteresis;
+  std::vector<D> g, z, s;
+  simulate_plain<D>(p, geometry, impact, n_samples, grf ? &g : nullptr, impactor ? &z : nullptr,
+                    surface ? &s : nullptr);
+  auto back = [](const std::vector<D>& in, std::vector<J>* out) {
+    if (!out) return;
+    out->resize(in.size());
+    for (std::size_t k = 0; k < in.size(); ++k) {
+      (*out)[k].a = in[k].a;
+      for (int i = 0; i < N; ++i) (*out)[k].v[i] = in[k].v[i];
+    }
+  };
+  back(g, grf);
+  back(z, impactor);
+  back(s, surface);
+}
+
+}  // namespace model5_detail
+
+// Model 5 for the fitter: the samples t_i = first_output_s + i output_dt_s,
+// i < n_samples, of the ground reaction force, the impactor face centre's
+// travel and element 1's top under the face centre (as simulate_model5's
+// Simulation::grf_n, impactor_m, surface_m). Any null output is skipped.
+// T: double, or ceres::Jet<double, N> (the derivatives of the discrete
+// solution with the contact pattern held; see the header comment). Throws
+// Error for what simulate_model5 rejects.
+template <typename T>
+void simulate_model5_t(const Model5ParamsT<T>& params, const Model5Geometry& geometry, const Impact& impact,
+                       int n_samples, std::vector<T>* grf, std::vector<T>* impactor, std::vector<T>* surface) {
+  if constexpr (model5_detail::IsJet<T>::value) {
+    model5_detail::simulate_jet(params, geometry, impact, n_samples, grf, impactor, surface);
+  } else {
+    model5_detail::simulate_plain(params, geometry, impact, n_samples, grf, impactor, surface);
+  }
 }
 
 }  // namespace dropfit::fitting
