@@ -74,7 +74,9 @@ struct Layout {
   std::vector<double> pair_f;
   std::vector<int> frame_cell;
   std::vector<double> frame_f;
+  std::vector<double> frame_w;         // frame factor per cell (0 inside or when free)
   double inertia_x = 0.0, inertia_y = 0.0;  // impactor's tilt inertias
+  double shear_gamma = 0.0;  // bound on the shear damping's rate (1/s)
   double zc0 = 0.0, tx0 = 0.0, ty0 = 0.0, wx0 = 0.0, wy0 = 0.0;
   int px = 0, py = 0, px1 = 0, py1 = 0;     // probe under the face centre
   double fxw = 0.0, fyw = 0.0;
@@ -385,6 +387,15 @@ class Integrator {
   // the same second-order device as the explicit scheme's).
   void kick(double tau) {
     if (tau == 0.0) return;
+    // The shear damping, explicit here, would cap the step at about
+    // 1 / (its fastest rate); sub-kicks of at most 0.8 of that keep it
+    // stable at any step (positions are held during the kick, so the shear
+    // stiffness alone bounds the step: see make_layout).
+    const int m = std::max(1, static_cast<int>(std::ceil(L_.shear_gamma * tau / 0.8 - 1e-9)));
+    for (int k = 0; k < m; ++k) kick_once(tau / m);
+  }
+
+  void kick_once(double tau) {
     const bool damped = c1_ > 0.0 || c2_ > 0.0;
     const int n = L_.n;
     std::vector<T>& g1 = b1_;
@@ -399,23 +410,36 @@ class Integrator {
         g2[j] += c2_ * (v2_[j] + (0.5 * tau) * ab2_[j]);
       }
     }
+    // Shear stencil on the grid (flat index j = ix * ny + iy): links along
+    // x join j and j + ny with factor dy/dx, along y j and j + 1 with dx/dy;
+    // frame links (framed edges) pull each edge cell towards travel 0.
+    const int nx = L_.nx, ny = L_.ny;
+    const double fx = L_.dy / L_.dx, fy = L_.dx / L_.dy;
     for (int j = 0; j < n; ++j) {
-      ab1_[j] = T(0.0);
-      ab2_[j] = T(0.0);
+      ab1_[j] = -L_.frame_w[j] * g1[j];
+      ab2_[j] = -L_.frame_w[j] * g2[j];
     }
-    for (std::size_t e = 0; e < L_.pair_a.size(); ++e) {
-      const int a = L_.pair_a[e], b = L_.pair_b[e];
-      const double f = L_.pair_f[e];
-      const T t1 = f * (g1[b] - g1[a]), t2 = f * (g2[b] - g2[a]);
-      ab1_[a] += t1;
-      ab1_[b] -= t1;
-      ab2_[a] += t2;
-      ab2_[b] -= t2;
+    for (int ix = 0; ix + 1 < nx; ++ix) {
+      const int o = ix * ny;
+      for (int iy = 0; iy < ny; ++iy) {
+        const int j = o + iy;
+        const T t1 = fx * (g1[j + ny] - g1[j]), t2 = fx * (g2[j + ny] - g2[j]);
+        ab1_[j] += t1;
+        ab1_[j + ny] -= t1;
+        ab2_[j] += t2;
+        ab2_[j + ny] -= t2;
+      }
     }
-    for (std::size_t e = 0; e < L_.frame_cell.size(); ++e) {
-      const int j = L_.frame_cell[e];
-      ab1_[j] -= L_.frame_f[e] * g1[j];
-      ab2_[j] -= L_.frame_f[e] * g2[j];
+    for (int ix = 0; ix < nx; ++ix) {
+      const int o = ix * ny;
+      for (int iy = 0; iy + 1 < ny; ++iy) {
+        const int j = o + iy;
+        const T t1 = fy * (g1[j + 1] - g1[j]), t2 = fy * (g2[j + 1] - g2[j]);
+        ab1_[j] += t1;
+        ab1_[j + 1] -= t1;
+        ab2_[j] += t2;
+        ab2_[j + 1] -= t2;
+      }
     }
     const T im1 = T(1.0) / m1n_, im2 = T(1.0) / m2n_;
     for (int j = 0; j < n; ++j) {
