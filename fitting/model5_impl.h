@@ -36,6 +36,7 @@
 #include <type_traits>
 #include <vector>
 
+#include "core/error.h"
 #include "fitting/model5.h"
 #include "fitting/models_impl.h"
 
@@ -58,6 +59,29 @@ struct Model5ParamsT {
 // From MatParams (throws Error for what Model 5 cannot use, as
 // simulate_model5 does).
 Model5ParamsT<double> model5_params(const MatParams& params);
+
+// From the fitter's templated parameter block (fitting/models_impl.h, laid
+// out as Model 4: k[0..2], r[0..2], m1, m2 and the effects), so that Jets
+// from the fit's parameter space flow straight in. Throws Error if the
+// Maxwell arm is on (Model 5 does not carry it).
+template <typename T>
+Model5ParamsT<T> model5_params_t(const detail::ParamsT<T>& p) {
+  if (p.maxwell) throw Error("model5: the Maxwell arm (maxwell_k_n_m > 0) is not carried by Model 5");
+  Model5ParamsT<T> q;
+  q.k1_n_m = p.k[0];
+  q.k2_n_m = p.k[1];
+  q.k3_n_m = p.k[2];
+  q.r1_n_s_m = p.r[0];
+  q.r2_n_s_m = p.r[1];
+  q.r3_n_s_m = p.r[2];
+  q.m1_kg = p.m1;
+  q.m2_kg = p.m2;
+  q.k1_cubic_n_m3 = p.k1_cubic;
+  q.cubic = p.cubic;
+  q.hysteresis = p.hysteresis;
+  q.r1_unload_n_s_m = p.hysteresis ? p.r1_unload : p.r[0];
+  return q;
+}
 
 namespace model5_detail {
 

@@ -371,6 +371,32 @@ TEST(Model5, FirstOutputOffsetSamplesBetweenTheSteps) {
 // ---------------------------------------------------------------------------
 // Exact derivatives: the Jet version against central differences of the
 // double version, per parameter, over the three fitted series.
+TEST(Model5, FitterParameterBlockMapsOntoModel5) {
+  // The fitter's Model 4 block (detail::ParamsT) carries the same values
+  // into Model 5, and the same simulation follows.
+  MatParams p = table2();
+  p.r1_unload_n_s_m = 120.0;
+  const Model5ParamsT<double> a = model5_params(p);
+  const Model5ParamsT<double> b = model5_params_t(detail::to_params_t<double>(ModelKind::Model4, p));
+  EXPECT_EQ(a.k1_n_m, b.k1_n_m);
+  EXPECT_EQ(a.k3_n_m, b.k3_n_m);
+  EXPECT_EQ(a.r2_n_s_m, b.r2_n_s_m);
+  EXPECT_EQ(a.m2_kg, b.m2_kg);
+  EXPECT_EQ(a.r1_unload_n_s_m, 120.0);
+  EXPECT_EQ(b.r1_unload_n_s_m, 120.0);
+  EXPECT_TRUE(b.hysteresis);
+  std::vector<double> ga, gb;
+  simulate_model5_t<double>(a, Model5Geometry{}, trial3(), 301, &ga, nullptr, nullptr);
+  simulate_model5_t<double>(b, Model5Geometry{}, trial3(), 301, &gb, nullptr, nullptr);
+  EXPECT_EQ(ga, gb);
+  // And simulate_model5 (the Simulation path) gives the same force.
+  const Simulation s = simulate_model5(p, Model5Geometry{}, trial3());
+  for (int k = 0; k < 301; ++k) ASSERT_EQ(s.grf_n(k), ga[k]);
+  p.maxwell_k_n_m = 1000.0;
+  p.maxwell_tau_s = 0.01;
+  EXPECT_THROW(model5_params_t(detail::to_params_t<double>(ModelKind::Model4, p)), Error);
+}
+
 void expect_jet_matches_central_differences(const MatParams& params) {
   using J = ceres::Jet<double, 8>;
   const Model5Geometry geo;
