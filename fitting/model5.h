@@ -5,7 +5,7 @@
 // in visual Nastran 4D: the mat layers as solid shapes with their real
 // dimensions and densities, separated by the same linear springs as Model 4,
 // and the impactor a rigid body (28 s per simulation). This is a fast
-// stand-in for it (about 2 ms per 0.3 s impact) that keeps what the
+// stand-in for it (about 1-2 ms per 0.3 s impact) that keeps what the
 // geometry adds: the impactor's finite face, off-centre and tilted impacts,
 // and a mat that deforms over an area larger than the face.
 //
@@ -92,8 +92,10 @@
 // relaxing top: Model 4's meaning); layer1_m, layer2_m = the top and bottom
 // layers' travel under the face centre (bilinear between cell centres,
 // clamped at the outer centres); separation_s = first step at which the
-// contact force is zero after it was positive. Sampled at
-// impact.output_dt_s.
+// contact force is zero after it was positive (with the force at step
+// starts). Sampled at t = impact.first_output_s + i * output_dt_s (as
+// Models 1-4). For the fitter with exact derivatives:
+// simulate_model5_t<T> in fitting/model5_impl.h (T = double or ceres::Jet).
 //
 // Default shear: S_1 = S_2 = 7e4 N/m gives the top layer's dent a volume /
 // depth of 0.35 m^2 with the paper's Table 2 Model 5 parameters at 5.25 m/s
@@ -101,25 +103,35 @@
 // surface (0.030-0.044 m^3 over 0.088-0.118 m); C = 5e-4 s x S. A starting
 // value, to be fitted when the data carry the surface's shape.
 //
-// Integration: leapfrog (Stoermer-Verlet, kick-drift; Hairer, Lubich &
-// Wanner, Geometric Numerical Integration, 2006, sec. I.1.4) with one force
-// evaluation per step: velocities live at half steps, v(n+1/2) = v(n-1/2) +
-// dt a(n), z(n+1) = z(n) + dt v(n+1/2); the damping forces at t_n use the
-// estimate v(n-1/2) + dt/2 a(n-1), which keeps the scheme second order with
-// damping (plain semi-implicit Euler is first order there: 0.37 % of peak
-// against Model 4 at dt = 1e-4 s, against 0.007 % for this). The step is
-// output_dt_s / n, n the smallest integer giving dt <= max_step_s and
-// dt <= stability_fraction (0.8) * dt_stable, where dt_stable solves
-// w^2 dt^2 + 4 g dt = 4 (this scheme's limit for a damped oscillator:
-// w dt < 2 undamped, g dt < 1 overdamped) with w^2 and g Gershgorin bounds
-// of M^-1 K and M^-1 C over all nodes (contact closed) and the impactor.
-// With the paper's parameters the stiffest node column alone has
-// w ~ 760 rad/s (w dt ~ 0.07 at 1e-4 s); with the default shear the shear
-// damping sets the step: 91 us, 3300 steps per 0.3 s. The cubic term
-// (k1_cubic) is not in the bound: keep max_step_s small enough for its
-// tangent stiffness. Every element applies equal and opposite forces, so
-// the GRF impulse balances the impactor's and the mat's momentum to
-// rounding. Nothing is allocated inside the time loop.
+// Integration (fitting/model5_impl.h; accuracy and speed in docs/models.md):
+// the forces split in two. (A) The vertical elements 1-3 of every node
+// column, the impactor's inertia and gravity: implicit, by a three-stage,
+// L-stable, stiffly accurate SDIRK of order 3 (Alexander 1977). Per stage
+// the linear system is solved exactly: the columns the face presses are
+// eliminated (2 x 2 each) onto the impactor's three coordinates (3 x 3);
+// the columns it does not press are independent and linear, and step by
+// their exact 4 x 4 exponential. (B) The layers' shear coupling (and
+// element 1's cubic term): explicit half kicks before and after each A step
+// (Strang splitting; the shear damping sub-stepped inside the kick). The
+// contact set holds over a step: a cell joins when the face reaches its
+// element's top at the step's start, and a pressed cell whose contact
+// impulse over the step would pull is released and the step redone. So
+// stiffness and damping k, r set no stability limit: the step is
+// output_dt_s / n, n the smallest integer giving dt <= max_step_s, dt <=
+// stability_fraction * 2 / w_shear (w_shear a Gershgorin bound on the shear
+// stiffness over the node masses: 3 500 rad/s with the default shear, 0.45
+// ms), and, for an overdamped element (r^2 > 4 k m on its node), dt <=
+// 0.07 / its creep rate 2 k / (r + sqrt(r^2 - 4 k m)). The first output
+// interval is stepped 8 times finer (the face lands at full speed on light
+// cells). At the paper's parameters: 0.1 ms, 3070 steps per 0.3 s; at every
+// corner of the fitter's bounds (k 2e3..3e7 N/m, r 3..3e4 N s/m) at most
+// 5220 steps, within 0.5 % of the peak force and 1 % RMS of a 1 us
+// reference. The cubic term (k1_cubic) is explicit: keep max_step_s small
+// enough for its tangent stiffness. Every element applies equal and
+// opposite forces, so the GRF impulse balances the impactor's and the mat's
+// momentum. Nothing is allocated inside the time loop. The former explicit
+// leapfrog (its step capped by the stiffest element: 3.3 us at the stiff,
+// damped corner) is kept as simulate_model5_leapfrog, the reference.
 #include <Eigen/Core>
 
 #include "fitting/models.h"
@@ -158,8 +170,9 @@ struct Model5Geometry {
   double inertia_tilt_x_kg_m2 = 0.0;
   double inertia_tilt_y_kg_m2 = 0.0;
 
-  // Integration: largest step allowed, and the fraction of the stability
-  // bound used (see the header comment; both may only be lowered safely).
+  // Integration: largest step allowed (accuracy), and the fraction of the
+  // shear's stability bound used (see the header comment; both may only be
+  // lowered safely).
   double max_step_s = 1e-4;
   double stability_fraction = 0.8;
 };
@@ -199,8 +212,16 @@ struct Model5Result {
 Model5Result simulate_model5_detailed(const MatParams& params, const Model5Geometry& geometry,
                                       const Impact& impact);
 
-// The same, as a black box for the fitter.
+// The same, as a black box (Simulation as Models 1-4 return it).
 Simulation simulate_model5(const MatParams& params, const Model5Geometry& geometry,
                            const Impact& impact);
+
+// The former explicit scheme (leapfrog, every force explicit, its step
+// capped by the stiffest element's stability: 3.4 us at the fitter's stiff,
+// damped bounds). Kept as the reference solution (at a tiny max_step_s) and
+// for the before/after benchmark. Samples at i * output_dt_s (ignores
+// first_output_s).
+Model5Result simulate_model5_leapfrog(const MatParams& params, const Model5Geometry& geometry,
+                                      const Impact& impact);
 
 }  // namespace dropfit::fitting

@@ -4,9 +4,14 @@
 // symmetry (no tilt), and the time step (convergence).
 #include "fitting/model5.h"
 
+#include <ceres/jet.h>
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
+#include <vector>
+
+#include "fitting/model5_impl.h"
 
 #include "core/error.h"
 #include "fitting/models.h"
@@ -264,6 +269,202 @@ TEST(Model5, RejectsImpossibleInput) {
   Model5Geometry no_cells = geo;
   no_cells.nodes_y = 0;
   EXPECT_THROW(simulate_model5(table2(), no_cells, trial3()), Error);
+}
+
+
+// ---------------------------------------------------------------------------
+// Accuracy against a reference: the former explicit leapfrog (every force
+// explicit; second order, stable at its step) at max_step_s = 1e-6 s, 100
+// times below the default step and 9 times below the fastest time scale in
+// these cases (m1 / (r1 w) = 9 us at r1 = 3e4 N s/m): its own error is below
+// 0.01 % of peak (halving its step changes it by less). Cases: the paper's
+// Table 2 parameters and the corners of the fitter's bounds (fitting/fit.h:
+// stiffness 2e3..3e7 N/m, damping 3..3e4 N s/m).
+struct Case {
+  const char* name;
+  double k, r;  // all three elements; k = 0: Table 2; k < 0: see case_params
+  double rms_limit;
+};
+
+MatParams case_params(const Case& c) {
+  MatParams p = table2();
+  if (c.k < 0.0) {  // element 1 at its stiff, damped corner, the others Table 2's
+    p.k1_n_m = 3e7;
+    p.r1_n_s_m = 3e4;
+  } else if (c.k > 0.0) {
+    p.k1_n_m = p.k2_n_m = p.k3_n_m = c.k;
+    p.r1_n_s_m = p.r2_n_s_m = p.r3_n_s_m = c.r;
+  }
+  return p;
+}
+
+class Model5Accuracy : public ::testing::TestWithParam<Case> {};
+
+TEST_P(Model5Accuracy, MatchesTheFineStepReference) {
+  const Case c = GetParam();
+  const MatParams p = case_params(c);
+  Model5Geometry fine;
+  fine.max_step_s = 1e-6;
+  const Model5Result ref = simulate_model5_leapfrog(p, fine, trial3());
+  const Model5Result r = simulate_model5_detailed(p, Model5Geometry{}, trial3());
+  ASSERT_EQ(r.sim.grf_n.size(), ref.sim.grf_n.size());
+  const double peak = ref.sim.grf_n.maxCoeff();
+  ASSERT_GT(peak, 500.0);
+  // Peak within 0.5 % (the target); the whole force curve within
+  // rms_limit of the peak (RMS over the 0.3 s).
+  EXPECT_NEAR(r.sim.grf_n.maxCoeff(), peak, 0.005 * peak) << c.name;
+  const double rms = std::sqrt((r.sim.grf_n - ref.sim.grf_n).squaredNorm() / static_cast<double>(ref.sim.grf_n.size()));
+  EXPECT_LT(rms, c.rms_limit * peak) << c.name;
+  // The impactor's travel within 0.5 mm RMS (a marker's noise).
+  const double rms_z =
+      std::sqrt((r.sim.impactor_m - ref.sim.impactor_m).squaredNorm() / static_cast<double>(ref.sim.grf_n.size()));
+  EXPECT_LT(rms_z, 5e-4) << c.name;
+}
+
+// Limits: peak 0.5 %, RMS 1 % of peak (the targets; measured at most 0.23 %
+// and 0.41 %, docs/models.md). Includes the stiff, nearly undamped corner
+// where the light mat cells ring at up to 11 000 rad/s (the free columns are
+// stepped exactly; the former explicit scheme at its own step: 4.6 % RMS).
+INSTANTIATE_TEST_SUITE_P(TypicalAndBounds, Model5Accuracy,
+                         ::testing::Values(Case{"table2", 0.0, 0.0, 0.01}, Case{"k_min_r_min", 2e3, 3.0, 0.01},
+                                           Case{"k_min_r_max", 2e3, 3e4, 0.01}, Case{"k_max_r_min", 3e7, 3.0, 0.01},
+                                           Case{"k_max_r_max", 3e7, 3e4, 0.01},
+                                           Case{"k1_max_r1_max", -1.0, 0.0, 0.01}),
+                         [](const auto& info) { return std::string(info.param.name); });
+
+TEST(Model5, StepIsSetByAccuracyNotStability) {
+  // The vertical elements are implicit: stiff, undamped elements keep
+  // max_step_s; stiff, overdamped ones creep at 2 k / (r + sqrt(r^2 - 4 k m))
+  // (1150 1/s for element 3 at k = 3e7, r = 3e4, m = 3.66 / 54 kg) and get
+  // 0.07 / that: 1/17 of the 1 ms output step. The explicit scheme fell to
+  // 3.3 us there.
+  const Model5Result typical = simulate_model5_detailed(table2(), Model5Geometry{}, trial3());
+  EXPECT_NEAR(typical.step_s, 1e-4, 1e-12);
+  const Model5Result undamped = simulate_model5_detailed(case_params({"", 3e7, 3.0, 0.0}), Model5Geometry{}, trial3());
+  EXPECT_NEAR(undamped.step_s, 1e-4, 1e-12);
+  const Model5Result damped = simulate_model5_detailed(case_params({"", 3e7, 3e4, 0.0}), Model5Geometry{}, trial3());
+  EXPECT_NEAR(damped.step_s, 1e-3 / 17, 1e-12);
+  const Model5Result old = simulate_model5_leapfrog(case_params({"", 3e7, 3e4, 0.0}), Model5Geometry{}, trial3());
+  EXPECT_LT(old.step_s, 1e-5);
+}
+
+TEST(Model5, FirstOutputOffsetSamplesBetweenTheSteps) {
+  // first_output_s shifts the samples: the series at 0.4 ms must lie
+  // between its neighbours on a 0.1 ms grid (linear interpolation of the
+  // unshifted fine series, within 0.2 % of peak: the curve's curvature over
+  // 0.1 ms).
+  Impact fine = trial3();
+  fine.output_dt_s = 1e-4;
+  const Simulation a = simulate_model5(table2(), Model5Geometry{}, fine);
+  Impact shifted = trial3();
+  shifted.first_output_s = 4e-4;
+  const Simulation b = simulate_model5(table2(), Model5Geometry{}, shifted);
+  ASSERT_NEAR(b.t_s(0), 4e-4, 1e-15);
+  const double peak = a.grf_n.maxCoeff();
+  for (int i = 0; i + 1 < b.t_s.size(); ++i) {
+    const int k = 4 + 10 * i;  // same time on the fine grid
+    ASSERT_NEAR(a.t_s(k), b.t_s(i), 1e-12);
+    EXPECT_NEAR(b.grf_n(i), a.grf_n(k), 0.002 * peak) << "t " << b.t_s(i);
+  }
+}
+
+// ---------------------------------------------------------------------------
+// Exact derivatives: the Jet version against central differences of the
+// double version, per parameter, over the three fitted series.
+TEST(Model5, FitterParameterBlockMapsOntoModel5) {
+  // The fitter's Model 4 block (detail::ParamsT) carries the same values
+  // into Model 5, and the same simulation follows.
+  MatParams p = table2();
+  p.r1_unload_n_s_m = 120.0;
+  const Model5ParamsT<double> a = model5_params(p);
+  const Model5ParamsT<double> b = model5_params_t(detail::to_params_t<double>(ModelKind::Model4, p));
+  EXPECT_EQ(a.k1_n_m, b.k1_n_m);
+  EXPECT_EQ(a.k3_n_m, b.k3_n_m);
+  EXPECT_EQ(a.r2_n_s_m, b.r2_n_s_m);
+  EXPECT_EQ(a.m2_kg, b.m2_kg);
+  EXPECT_EQ(a.r1_unload_n_s_m, 120.0);
+  EXPECT_EQ(b.r1_unload_n_s_m, 120.0);
+  EXPECT_TRUE(b.hysteresis);
+  std::vector<double> ga, gb;
+  simulate_model5_t<double>(a, Model5Geometry{}, trial3(), 301, &ga, nullptr, nullptr);
+  simulate_model5_t<double>(b, Model5Geometry{}, trial3(), 301, &gb, nullptr, nullptr);
+  EXPECT_EQ(ga, gb);
+  // And simulate_model5 (the Simulation path) gives the same force.
+  const Simulation s = simulate_model5(p, Model5Geometry{}, trial3());
+  for (int k = 0; k < 301; ++k) ASSERT_EQ(s.grf_n(k), ga[k]);
+  p.maxwell_k_n_m = 1000.0;
+  p.maxwell_tau_s = 0.01;
+  EXPECT_THROW(model5_params_t(detail::to_params_t<double>(ModelKind::Model4, p)), Error);
+}
+
+void expect_jet_matches_central_differences(const MatParams& params) {
+  using J = ceres::Jet<double, 8>;
+  const Model5Geometry geo;
+  Impact im = trial3();
+  im.duration_s = 0.1;  // the contact and the rebound
+  const int n = 101;
+  const Model5ParamsT<double> base = model5_params(params);
+  auto field = [](auto& p, int i) -> auto& {
+    switch (i) {
+      case 0: return p.k1_n_m;
+      case 1: return p.k2_n_m;
+      case 2: return p.k3_n_m;
+      case 3: return p.r1_n_s_m;
+      case 4: return p.r2_n_s_m;
+      case 5: return p.r3_n_s_m;
+      case 6: return p.m1_kg;
+      default: return p.m2_kg;
+    }
+  };
+  Model5ParamsT<J> pj;
+  for (int i = 0; i < 8; ++i) field(pj, i) = J(field(base, i), i);
+  pj.r1_unload_n_s_m = J(base.r1_unload_n_s_m);
+  std::vector<J> gj, zj, sj;
+  simulate_model5_t<J>(pj, geo, im, n, &gj, &zj, &sj);
+  std::vector<double> g0, z0, s0;
+  simulate_model5_t<double>(base, geo, im, n, &g0, &z0, &s0);
+  for (int k = 0; k < n; ++k) {
+    // The Jet's values are the double run's (to rounding: the operations are grouped differently).
+    ASSERT_NEAR(gj[k].a, g0[k], 1e-9 * (1.0 + std::abs(g0[k])));
+    ASSERT_NEAR(zj[k].a, z0[k], 1e-12);
+  }
+  for (int i = 0; i < 8; ++i) {
+    // Relative step 1e-5: truncation (h^2) and rounding (1e-16 / h) both
+    // near 1e-10 relative, far below the 1e-4 asked.
+    const double h = 1e-5 * field(base, i);
+    Model5ParamsT<double> lo = base, hi = base;
+    field(lo, i) -= h;
+    field(hi, i) += h;
+    std::vector<double> gl, zl, sl, gh, zh, sh;
+    simulate_model5_t<double>(lo, geo, im, n, &gl, &zl, &sl);
+    simulate_model5_t<double>(hi, geo, im, n, &gh, &zh, &sh);
+    double num = 0.0, den = 0.0, num_z = 0.0, den_z = 0.0, num_s = 0.0, den_s = 0.0;
+    for (int k = 0; k < n; ++k) {
+      const double cd = (gh[k] - gl[k]) / (2 * h), cz = (zh[k] - zl[k]) / (2 * h), cs = (sh[k] - sl[k]) / (2 * h);
+      num += std::pow(gj[k].v[i] - cd, 2);
+      den += cd * cd;
+      num_z += std::pow(zj[k].v[i] - cz, 2);
+      den_z += cz * cz;
+      num_s += std::pow(sj[k].v[i] - cs, 2);
+      den_s += cs * cs;
+    }
+    ASSERT_GT(den, 0.0) << "parameter " << i;
+    std::printf("  parameter %d: relative error grf %.2e impactor %.2e surface %.2e\n", i, std::sqrt(num / den),
+                std::sqrt(num_z / den_z), std::sqrt(num_s / den_s));
+    EXPECT_LT(std::sqrt(num / den), 1e-4) << "grf, parameter " << i;
+    EXPECT_LT(std::sqrt(num_z / den_z), 1e-4) << "impactor, parameter " << i;
+    EXPECT_LT(std::sqrt(num_s / den_s), 1e-4) << "surface, parameter " << i;
+  }
+}
+
+TEST(Model5, JetDerivativesMatchCentralDifferences) { expect_jet_matches_central_differences(table2()); }
+
+TEST(Model5, JetDerivativesMatchCentralDifferencesStiffDamped) {
+  expect_jet_matches_central_differences(case_params({"", 3e7, 3e4, 0.0}));
+}
+
+TEST(Model5, JetDerivativesMatchCentralDifferencesSoftDamped) {
+  expect_jet_matches_central_differences(case_params({"", 2e3, 3e4, 0.0}));
 }
 
 }  // namespace
