@@ -3,6 +3,7 @@
 // must not. Skipped when ../shared is absent.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <filesystem>
 
 #include "capture/io.h"
@@ -52,6 +53,45 @@ TEST(ValidationCalibration, SwappedPairAndLensDistortion) {
   EXPECT_TRUE(named(d.effects, "outlier_marker")) << report(d);
   EXPECT_TRUE(named(d.effects, "lens_distortion")) << report(d);
   EXPECT_TRUE(d.remaining.empty()) << report(d);
+}
+
+}  // namespace
+}  // namespace dropfit::diagnosis
+
+namespace dropfit::diagnosis {
+namespace {
+
+// Calibration, sync and force plate on the pipeline's state (the mat stage
+// is the lead's, tested elsewhere): exactly the session's injected effects
+// of those stages.
+std::vector<std::string> upstream_effects(const std::string& name, DiagnosisResult* out = nullptr) {
+  const Session s = capture::read_session(validation(name));
+  const SessionState state = pipeline::session_state(s);
+  DiagnosisOptions o;
+  o.mat = false;
+  const DiagnosisResult r = diagnose(state, o);
+  std::vector<std::string> names;
+  for (const auto& e : r.effects) names.push_back(e.name);
+  std::sort(names.begin(), names.end());
+  if (out) *out = r;
+  return names;
+}
+
+TEST(ValidationUpstream, EachSessionNamesExactlyItsInjectedEffects) {
+  const std::vector<std::pair<std::string, std::vector<std::string>>> cases{
+      {"v1-realistic", {}},
+      {"v2-linear-control", {}},
+      {"v3-hysteresis", {}},
+      {"v4-rate", {}},
+      {"v5-outlier-lens-offset", {"lens_distortion", "outlier_marker", "time_offset"}},
+      {"v6-formats-drift-scale", {"baseline_drift", "force_scale"}}};
+  for (const auto& [name, expected] : cases) {
+    if (!have(name)) GTEST_SKIP() << "../shared/validation absent";
+    DiagnosisResult r;
+    EXPECT_EQ(upstream_effects(name, &r), expected) << name << "\n" << r.report();
+    EXPECT_FALSE(r.unexplained) << name << "\n" << r.report();
+    std::cerr << name << "\n" << r.report();
+  }
 }
 
 }  // namespace
