@@ -15,18 +15,34 @@
 //
 // Stages, candidate effects (names as in the spec's table) and held-out tests:
 //
-//   calibration  lens_distortion  residual: each marker's reprojection error
-//                                 (fit and check); structure: its radial part
-//                                 against the image radius cubed (Bouguet's k1
-//                                 r^3). Refit with distortion (dlt16).
-//                outlier_marker   a fit marker whose leave-one-out 3-D residual
-//                                 stands far beyond the rest (calibrate()'s
-//                                 outliers). Drop it, refit. Information
-//                                 criterion: the mean-shift outlier model (the
-//                                 marker's own 2 free coordinates per camera).
-//                held out: the check markers' 3-D errors (check_rms_mm,
-//                check_max_mm), paired per check marker; BIC on the fit's
-//                reprojection RSS.
+//   calibration  every hypothesis judged by leave-one-out cross-validation
+//                on ALL markers (fit and check alike): each marker held out in
+//                turn, every camera that sees it refitted on the others, the
+//                marker triangulated; its 3-D error is the held-out error.
+//                outlier_marker   the markers with the largest held-out errors
+//                                 (beyond 2 x the median and min_outlier_m),
+//                                 dropped alone or in pairs (a label slip
+//                                 swaps two markers, and both then stand
+//                                 out); a dropped pair is also tested as a
+//                                 label swap (its images exchanged in one
+//                                 camera) and named so when that fits.
+//                                 Information criterion: the mean-shift
+//                                 outlier model (two free coordinates per
+//                                 camera for each dropped marker).
+//                lens_distortion  Bouguet's radial k1 alone first (one
+//                                 parameter per camera), then p1 p2, each only
+//                                 while every camera keeps twice as many
+//                                 equations as parameters; k1 with its
+//                                 jackknife SE over the leave-one-out refits.
+//                Forward selection: each round every candidate is scored, the
+//                passing one (paired held-out drop over the markers both
+//                models judge, and BIC on the all-marker reprojection RSS)
+//                with the lowest held-out RMS is kept. The chosen model
+//                (markers dropped, distortion terms) is then fitted on the fit
+//                markers (the protocol) and used by every later stage and
+//                command (pipeline::calibrate_session). Errors: cv_rms_mm,
+//                cv_max_mm, fit_rms_px per step; check_rms_mm, check_max_mm of
+//                the baseline against the chosen calibration.
 //   sync         time_offset      the declared relation (video frame
 //                                 trigger_frame at the plate trigger, offset 0)
 //                                 against the trial stage's per-trial estimates

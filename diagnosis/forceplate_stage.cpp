@@ -374,7 +374,26 @@ ForceplateDiagnosis diagnose_forceplate(const std::vector<PlateTrial>& trials, c
                         {"heldout_still_rms_n", detail::rms(held_b)}};
       e.error_after = {{"still_rms_n", std::sqrt(slope.rss / static_cast<double>(rows.size()))},
                        {"heldout_still_rms_n", detail::rms(held_a)}};
-      e.estimate = {{"drift_n_s", slope.slope}};
+      // The slope's SE: the residual SD over the drift column's spread about
+      // each trial's own mean (the intercepts absorb the rest), with the
+      // AR(1) effective sample size.
+      double sxx = 0.0;
+      {
+        std::vector<double> sum(static_cast<std::size_t>(nt), 0.0), cnt(static_cast<std::size_t>(nt), 0.0);
+        for (const auto& row : rows) {
+          sum[static_cast<std::size_t>(row.trial)] += row.column;
+          cnt[static_cast<std::size_t>(row.trial)] += 1.0;
+        }
+        for (const auto& row : rows) {
+          const double m = sum[static_cast<std::size_t>(row.trial)] / std::max(cnt[static_cast<std::size_t>(row.trial)], 1.0);
+          sxx += (row.column - m) * (row.column - m);
+        }
+      }
+      const double sigma = std::sqrt(slope.rss / std::max(static_cast<double>(rows.size()) - nt - 1.0, 1.0));
+      const double inflate = std::sqrt((1.0 + std::max(rho1, 0.0)) / (1.0 - std::min(std::max(rho1, 0.0), 0.99)));
+      const double slope_se = sxx > 0.0 ? sigma / std::sqrt(sxx) * inflate : kNaN;
+      e.estimate = {{"drift_n_s", slope.slope}, {"drift_n_s_se", slope_se}};
+      e.evidence += fmt::format(" +- {:.2f} N/s", slope_se);
       out.effects.push_back(std::move(e));
       out.correction.drift = true;
       out.correction.drift_from_contact = from_contact;
@@ -397,8 +416,9 @@ ForceplateDiagnosis diagnose_forceplate(const std::vector<PlateTrial>& trials, c
                ? fmt::format("the still parts of Fz oscillate at {:.1f} Hz ({:.1f} N amplitude, {:.0f} % of their "
                              "variance)",
                              pk.frequency_hz, pk.amplitude, 100.0 * pk.share)
-               : fmt::format("the still parts of Fz are not flat ({:.1f} N RMS against {:.1f} N noise, rho1 = {:.2f})",
-                             rms_left, noise, w.rho1())});
+               : fmt::format("the still parts of Fz are not flat ({:.1f} N RMS against {:.1f} N noise, rho1 = {:.2f}; "
+                             "strongest frequency {:.1f} Hz)",
+                             rms_left, noise, w.rho1(), pk.frequency_hz)});
     }
   }
 

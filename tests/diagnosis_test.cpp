@@ -205,6 +205,30 @@ TEST(Diagnosis, StiffnessThatDependsOnTheTrialNumberIsLeftUnexplained) {
   EXPECT_TRUE(r.unexplained) << r.report();
 }
 
+// Three fit markers mislabelled in one camera: more than the calibration
+// stage may drop (two), so its residual stays unexplained, and the later
+// stages are not assessed on a calibration it called bad (the injected
+// clock offset is then not named from it).
+TEST(Diagnosis, UnresolvedCalibrationLeavesLaterStagesNotAssessed) {
+  auto s = session_with({{"time_offset", 5.0}});
+  int moved = 0;
+  for (auto& o : s.session.images[0].observations) {
+    for (const auto& m : s.session.frame)
+      if (m.id == o.id && m.role == MarkerRole::Fit && moved < 3) {
+        o.image_px.x() += 40.0 + 25.0 * moved;  // gross, and different for each
+        ++moved;
+        break;
+      }
+  }
+  ASSERT_EQ(moved, 3);
+  const DiagnosisResult r = diagnose(s.session);
+  EXPECT_TRUE(r.unexplained) << r.report();
+  EXPECT_EQ(r.not_assessed, (std::vector<std::string>{"sync", "forceplate", "mat"})) << r.report();
+  for (const auto& e : r.effects) EXPECT_EQ(e.stage, "calibration") << r.report();
+  const auto j = nlohmann::json::parse(diagnosis_json(r));
+  EXPECT_EQ(j.at("not_assessed").size(), 3u);
+}
+
 TEST(Diagnosis, PaperTable1StiffeningFromPeakForces) {
   // samples/paper/table1.csv (Mills, Pain & Yeadon 2006, Table 1).
   const std::vector<fitting::TableTrial> table{{"1", 4.30, 0.088, 5593},

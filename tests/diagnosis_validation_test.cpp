@@ -96,3 +96,78 @@ TEST(ValidationUpstream, EachSessionNamesExactlyItsInjectedEffects) {
 
 }  // namespace
 }  // namespace dropfit::diagnosis
+
+namespace dropfit::diagnosis {
+namespace {
+
+double value(const ErrorSet& e, const std::string& key) {
+  for (const auto& [k, v] : e)
+    if (k == key) return v;
+  ADD_FAILURE() << "no value " << key;
+  return std::numeric_limits<double>::quiet_NaN();
+}
+
+// v5: cam1's c13 and c15 swapped, k1 = -0.10 on both cameras, video 3 ms ahead.
+TEST(ValidationUpstream, V5ParametersAndHeldOutErrors) {
+  if (!have("v5-outlier-lens-offset")) GTEST_SKIP() << "../shared/validation absent";
+  DiagnosisResult r;
+  upstream_effects("v5-outlier-lens-offset", &r);
+  const Effect* outlier = r.find("outlier_marker");
+  ASSERT_NE(outlier, nullptr) << r.report();
+  EXPECT_NE(outlier->evidence.find("c13 and c15"), std::string::npos) << outlier->evidence;
+  EXPECT_NE(outlier->evidence.find("label swap"), std::string::npos) << outlier->evidence;
+  // The target: check RMS back under 1 mm once the pair is out.
+  EXPECT_GT(value(outlier->error_before, "check_rms_mm"), 10.0);
+  EXPECT_LT(value(outlier->error_after, "check_rms_mm"), 1.0);
+  const Effect* lens = r.find("lens_distortion");
+  ASSERT_NE(lens, nullptr) << r.report();
+  // k1 = -0.10 injected; 18 markers at 0.2 px give a jackknife SE of about
+  // 0.02-0.03, and the DLT absorbs a little of it: within 0.05.
+  EXPECT_NEAR(value(lens->estimate, "cam1_k1"), -0.10, 0.05);
+  EXPECT_NEAR(value(lens->estimate, "cam2_k1"), -0.10, 0.05);
+  EXPECT_LT(value(lens->error_after, "cv_rms_mm"), 0.8 * value(lens->error_before, "cv_rms_mm"));
+  const Effect* offset = r.find("time_offset");
+  ASSERT_NE(offset, nullptr) << r.report();
+  // 3 ms injected; the contact instant reads the plate's onset lag
+  // (0.4-0.55 ms on this layered mat) with it.
+  EXPECT_NEAR(value(offset->estimate, "video_offset_ms"), 3.0, 0.7);
+}
+
+// v6: drift 25 N over the 5 s record, all channels scaled by 1.05.
+TEST(ValidationUpstream, V6ParametersAndHeldOutErrors) {
+  if (!have("v6-formats-drift-scale")) GTEST_SKIP() << "../shared/validation absent";
+  DiagnosisResult r;
+  upstream_effects("v6-formats-drift-scale", &r);
+  const Effect* drift = r.find("baseline_drift");
+  ASSERT_NE(drift, nullptr) << r.report();
+  // 5 N/s; 1.5 N noise over thousands of still samples: within 0.5 N/s.
+  EXPECT_NEAR(value(drift->estimate, "drift_n_s"), 5.0, 0.5);
+  EXPECT_LT(value(drift->error_after, "heldout_still_rms_n"), 0.5 * value(drift->error_before, "heldout_still_rms_n"));
+  const Effect* scale = r.find("force_scale");
+  ASSERT_NE(scale, nullptr) << r.report();
+  // The target: the scale within 0.5 %.
+  EXPECT_NEAR(value(scale->estimate, "gain"), 1.05, 0.005);
+  EXPECT_LT(value(scale->estimate, "gain_se"), 0.005);
+  EXPECT_LT(value(scale->error_after, "impulse_error_pct_rms"), 0.2 * value(scale->error_before, "impulse_error_pct_rms"));
+}
+
+// Clean sessions: the free-flight balance gives 1 within 0.5 % on each.
+TEST(ValidationUpstream, ImpulseBalanceIsOneOnCleanSessions) {
+  for (const std::string name : {"v1-realistic", "v2-linear-control", "v3-hysteresis", "v4-rate"}) {
+    if (!have(name)) GTEST_SKIP() << "../shared/validation absent";
+    const Session s = capture::read_session(validation(name));
+    const SessionState state = pipeline::session_state(s);
+    int n = 0;
+    for (const PlateTrial& t : plate_trials(state, 0.0)) {
+      const ImpulseBalance b = impulse_balance(t, {}, state.impactor_mass_kg, state.gravity_m_s2);
+      if (!std::isfinite(b.ratio)) continue;
+      ++n;
+      EXPECT_NEAR(b.ratio, 1.0, 0.005) << name << " " << t.id;
+      EXPECT_EQ(b.method, "free flight");
+    }
+    EXPECT_GE(n, 3) << name;
+  }
+}
+
+}  // namespace
+}  // namespace dropfit::diagnosis
