@@ -52,7 +52,10 @@
 //                                 plate force integrated twice), each trial
 //                                 judged with the offset estimated from the
 //                                 others (ms); AICc on the contact-instant
-//                                 disagreements.
+//                                 disagreements. The contact instant reads
+//                                 the plate's onset lag as offset, so below
+//                                 2 x onset_lag_s an offset counts only when
+//                                 the trajectory estimate shows it too.
 //   forceplate   baseline_drift   the zeroed Fz where it must be flat: the quiet
 //                                 pre-trigger part (0) and, after the contact,
 //                                 stretches where it holds still (0 with the
