@@ -89,6 +89,9 @@ SyncDiagnosis diagnose_sync(const std::vector<trial::TrialResult>& trials, const
     eff.error_before = {{"offset_error_ms_rms", detail::rms(before)}, {"offset_error_ms_max", detail::max_abs(before)}};
     eff.error_after = {{"offset_error_ms_rms", detail::rms(after)}, {"offset_error_ms_max", detail::max_abs(after)}};
     eff.estimate = {{"video_offset_ms", ms * mean}, {"video_offset_se_ms", ms * out.offset_se_s}};
+    // The contact instant carries the plate's onset lag; the trajectory
+    // estimate does not (but reads the mat's accelerated mass): both shown.
+    if (have_independent) eff.estimate.push_back({"video_offset_trajectory_ms", ms * e.mean()});
     out.effects.push_back(std::move(eff));
     out.offset_s = mean;
   } else if (stands_out) {
