@@ -1,4 +1,6 @@
 // dropfit calibrate SESSION --out DIR
+// The calibration stage's chosen camera model (diagnosis.h), the one
+// reconstruct, process, fit and run use.
 #include <fmt/format.h>
 
 #include <filesystem>
@@ -20,7 +22,8 @@ void add_calibrate(CLI::App& app, CommandContext& /*ctx*/) {
   auto* sub = app.add_subcommand("calibrate", "DLT per camera from the fit markers; accuracy on the check markers");
   sub->add_option("session", args->session, "session folder")->required()->check(CLI::ExistingDirectory);
   sub->add_option("--out", args->out, "output folder")->required();
-  sub->add_flag("--distortion", args->distortion, "add Bouguet lens distortion terms (dlt16)");
+  sub->add_flag("--distortion", args->distortion,
+                "force Bouguet lens distortion terms (k1 p1 p2) instead of the cross-validated choice");
   sub->callback([args] {
     namespace fs = std::filesystem;
     const fs::path root(args->session);
@@ -33,9 +36,19 @@ void add_calibrate(CLI::App& app, CommandContext& /*ctx*/) {
       session.images.push_back(
           capture::read_camera_csv((root / "calibration" / (camera + ".csv")).string(), camera, session.frame));
     }
-    calibration::CalibrationOptions options;
-    options.dlt.fit_distortion = args->distortion;
-    const auto result = pipeline::calibrate_session(session, options);
+    // By default the camera model every later stage uses: outliers and lens
+    // distortion decided by cross-validation on every marker.
+    calibration::CalibrationResult result;
+    if (args->distortion) {
+      calibration::CalibrationOptions options;
+      options.dlt.fit_distortion = true;
+      result = pipeline::calibrate_session(session, options);
+    } else {
+      const auto choice = pipeline::choose_calibration(session);
+      for (const auto& e : choice.effects) fmt::print("{}: {}\n", e.name, e.evidence);
+      for (const auto& r : choice.remaining) fmt::print("unexplained {}: {}\n", r.name, r.description);
+      result = choice.after;
+    }
 
     report::OutputSet out;
     pipeline::add_calibration_outputs(out, result, manifest.video);

@@ -35,6 +35,12 @@ std::vector<calibration::CameraView> camera_views(const std::vector<CalibrationI
   return views;
 }
 
+diagnosis::CalibrationDiagnosis choose_calibration(const Session& session) {
+  return diagnosis::diagnose_calibration(calibration_markers(session.frame), camera_views(session.images));
+}
+
+calibration::CalibrationResult calibrate_session(const Session& session) { return choose_calibration(session).after; }
+
 calibration::CalibrationResult calibrate_session(const Session& session,
                                                  const calibration::CalibrationOptions& options) {
   return calibration::calibrate(calibration_markers(session.frame), camera_views(session.images), options);
@@ -105,20 +111,15 @@ TrialOutcome process_trial(const Manifest& manifest, const TrialData& trial,
   auto options = trial_options(manifest, trial.spec.id);
   if (max_tilt_deg > 0.0) options.max_tilt_deg = max_tilt_deg;
   outcome.options = options;
-  forceplate::Resultants raw;
   try {
-    raw = raw_resultants(manifest, trial.force);
+    // A force record that cannot be converted or processed: the trial is
+    // rejected with the reason; the video-only numbers are still measured.
+    outcome.force = forceplate::process(raw_resultants(manifest, trial.force), force_options(manifest, trial.force));
   } catch (const Error& e) {
-    // A force record that cannot even be converted: the trial is rejected
-    // with the reason; the video-only numbers are still measured.
     outcome.result = trial::analyse_without_force(outcome.trajectories, options, e.what());
     return outcome;
   }
-  outcome.result = trial::analyse(raw, force_options(manifest, trial.force), outcome.trajectories, options);
-  try {  // kept for grf.mot; a record analyse() rejected has none
-    outcome.force = forceplate::process(raw, force_options(manifest, trial.force));
-  } catch (const Error&) {
-  }
+  outcome.result = trial::analyse(*outcome.force, outcome.trajectories, options);
   return outcome;
 }
 
@@ -231,6 +232,85 @@ report::MatGeometry mat_geometry(const Manifest& manifest) {
   return geometry;
 }
 
+diagnosis::SessionState session_state(const Session& session, const std::function<void(const std::string&)>& say) {
+  const Manifest& man = session.manifest;
+  diagnosis::SessionState state;
+  state.name = man.name;
+  state.impactor_mass_kg = man.impactor.mass_kg;
+  state.gravity_m_s2 = man.gravity_m_s2;
+  state.frame_rate_hz = man.video.frame_rate_hz;
+  state.trigger_frame = man.video.trigger_frame;
+  state.mat_top_z_m = man.forceplate.mat_top_z_m;
+  const trial::TrialOptions to = trial_options(man, "");
+  state.base_markers = to.base_markers;
+  state.surface_markers = to.surface_markers;
+  state.base_marker_height_m = to.base_marker_height_m;
+  state.quiet_guard_s = forceplate::ProcessOptions{}.quiet_guard_s;
+  state.baseline_fit_options = fit_options(man, fitting::ModelKind::Model4);
+
+  if (say) say("calibrating");
+  state.calibration = choose_calibration(session);
+  const auto cameras = cameras_of(state.calibration.after);
+  for (size_t i = 0; i < session.trials.size(); ++i) {
+    const auto& trial = session.trials[i];
+    if (say) say(fmt::format("trial {} ({}/{})", trial.spec.id, i + 1, session.trials.size()));
+    TrialOutcome outcome = process_trial(man, trial, cameras);
+    state.fit_data.push_back(fitting_trial(man, outcome.result));
+    state.trials.push_back({std::move(outcome.result), std::move(outcome.trajectories), std::move(outcome.force)});
+  }
+  return state;
+}
+
+std::vector<std::string> fit_models(diagnosis::SessionState& state, const Manifest& manifest,
+                                    const std::vector<fitting::ModelKind>& models, int threads,
+                                    const std::function<void(const std::string&)>& say) {
+  std::vector<std::string> notes;
+  std::vector<std::optional<fitting::FitResult>> fits(models.size());
+  std::vector<std::string> errors(models.size());
+  auto fit_one = [&](size_t k, const fitting::FitOptions& fit_opts) {
+    if (say) say("fitting " + fitting::model_name(models[k]));
+    try {
+      fits[k] = fitting::fit(state.fit_data, fit_opts);
+    } catch (const std::exception& e) {
+      errors[k] = e.what();
+    }
+  };
+  // The point-mass models first, in parallel; then Model 5, whose numeric
+  // derivatives make each start cost ~100 Model 4 fits, from Model 4's
+  // optimum (its parameters mean the same thing) with one start.
+  std::vector<size_t> first, last;
+  for (size_t k = 0; k < models.size(); ++k) (models[k] == fitting::ModelKind::Model5 ? last : first).push_back(k);
+  std::vector<std::thread> workers;
+  std::atomic<size_t> next{0};
+  const int n_threads = std::max(1, std::min<int>(threads, static_cast<int>(first.size())));
+  for (int w = 0; w < n_threads; ++w) {
+    workers.emplace_back([&] {
+      for (size_t i; (i = next++) < first.size();) fit_one(first[i], fit_options(manifest, models[first[i]]));
+    });
+  }
+  for (auto& w : workers) w.join();
+  for (size_t k : last) {
+    auto fit_opts = fit_options(manifest, models[k]);
+    for (size_t j = 0; j < models.size(); ++j) {
+      if (models[j] == fitting::ModelKind::Model4 && fits[j]) {
+        fit_opts.initial = fits[j]->params;
+        fit_opts.starts = 1;
+      }
+    }
+    fit_one(k, fit_opts);
+  }
+  for (size_t k = 0; k < models.size(); ++k) {
+    const auto name = fitting::model_name(models[k]);
+    if (!fits[k]) {
+      notes.push_back(fmt::format("{} fit failed: {}", name, errors[k]));
+      continue;
+    }
+    for (const auto& w : fits[k]->warnings) notes.push_back(name + ": " + w);
+    state.fits.push_back(std::move(*fits[k]));
+  }
+  return notes;
+}
+
 RunSummary run_session(const std::string& session_dir, const RunOptions& options, report::OutputSet& out,
                        Progress* progress) {
   auto say = [&](const std::string& stage, const std::string& detail = "") {
@@ -240,22 +320,17 @@ RunSummary run_session(const std::string& session_dir, const RunOptions& options
   const Session session = capture::read_session(session_dir);
   RunSummary summary;
   summary.session = session.manifest.name.empty() ? session_dir : session.manifest.name;
+  const auto tell = [&](const std::string& detail) { say(summary.session, detail); };
 
-  say(summary.session, "calibrating");
-  const auto calibration = calibrate_session(session);
-  add_calibration_outputs(out, calibration, session.manifest.video);
-  const auto cameras = cameras_of(calibration);
-
+  // One state, built once: calibration (the stage's choice), trials, fit
+  // data; the fits; then the loop on that same state.
+  diagnosis::SessionState state = session_state(session, tell);
+  add_calibration_outputs(out, state.calibration.after, session.manifest.video);
   std::vector<trial::TrialResult> results;
-  std::vector<fitting::TrialData> fit_data;
-  for (size_t i = 0; i < session.trials.size(); ++i) {
-    const auto& trial = session.trials[i];
-    say(summary.session, fmt::format("trial {} ({}/{})", trial.spec.id, i + 1, session.trials.size()));
-    auto outcome = process_trial(session.manifest, trial, cameras);
-    add_trial_outputs(out, outcome);
-    fit_data.push_back(fitting_trial(session.manifest, outcome.result));
-    summary.accepted += outcome.result.accepted ? 1 : 0;
-    results.push_back(std::move(outcome.result));
+  for (const auto& t : state.trials) {
+    add_trial_outputs(out, {t.trajectories, t.result, trial_options(session.manifest, t.result.id), t.force});
+    summary.accepted += t.result.accepted ? 1 : 0;
+    results.push_back(t.result);
   }
   summary.trials = static_cast<int>(results.size());
   out.add("summary.csv", report::summary_csv(results));
@@ -263,80 +338,41 @@ RunSummary run_session(const std::string& session_dir, const RunOptions& options
   report::SessionReport rep;
   rep.session_name = summary.session;
   rep.session_path = session_dir;
-  rep.calibration = &calibration;
+  rep.calibration = &state.calibration.after;
   rep.trials = results;
-  rep.fit_data = fit_data;
+  rep.fit_data = state.fit_data;
 
   if (summary.accepted == 0) {
     summary.notes.push_back("no accepted trial: nothing to fit");
   } else {
-    std::vector<std::optional<fitting::FitResult>> fits(options.models.size());
-    std::vector<std::string> errors(options.models.size());
-    auto fit_one = [&](size_t k, const fitting::FitOptions& fit_opts) {
-      say(summary.session, "fitting " + fitting::model_name(options.models[k]));
-      try {
-        fits[k] = fitting::fit(fit_data, fit_opts);
-      } catch (const std::exception& e) {
-        errors[k] = e.what();
+    const auto notes = fit_models(state, session.manifest, options.models, options.threads, tell);
+    summary.notes.insert(summary.notes.end(), notes.begin(), notes.end());
+    for (const auto& fit : state.fits) {
+      const auto name = fitting::model_name(fit.model);
+      add_fit_outputs(out, "fits/" + name + "/", fit, state.fit_data, session.manifest.impactor.mass_kg);
+      if (fit.model == fitting::ModelKind::Model4) {
+        add_fit_outputs(out, "", fit, state.fit_data, session.manifest.impactor.mass_kg);
       }
-    };
-    // The point-mass models first, in parallel; then Model 5, whose numeric
-    // derivatives make each start cost ~100 Model 4 fits, from Model 4's
-    // optimum (its parameters mean the same thing) with one start.
-    std::vector<size_t> first, last;
-    for (size_t k = 0; k < options.models.size(); ++k) {
-      (options.models[k] == fitting::ModelKind::Model5 ? last : first).push_back(k);
-    }
-    std::vector<std::thread> workers;
-    std::atomic<size_t> next{0};
-    const int threads = std::max(1, std::min<int>(options.threads, static_cast<int>(first.size())));
-    for (int w = 0; w < threads; ++w) {
-      workers.emplace_back([&] {
-        for (size_t i; (i = next++) < first.size();) {
-          fit_one(first[i], fit_options(session.manifest, options.models[first[i]]));
-        }
-      });
-    }
-    for (auto& w : workers) w.join();
-    for (size_t k : last) {
-      auto fit_opts = fit_options(session.manifest, options.models[k]);
-      for (size_t j = 0; j < options.models.size(); ++j) {
-        if (options.models[j] == fitting::ModelKind::Model4 && fits[j]) {
-          fit_opts.initial = fits[j]->params;
-          fit_opts.starts = 1;
-        }
+      if (fit.model == fitting::ModelKind::Model3 || fit.model == fitting::ModelKind::Model4) {
+        out.add("mat_" + name + ".mjcf.xml", report::mjcf_xml(fit.model, fit.params, mat_geometry(session.manifest)));
       }
-      fit_one(k, fit_opts);
-    }
-    for (size_t k = 0; k < options.models.size(); ++k) {
-      const auto name = fitting::model_name(options.models[k]);
-      if (!fits[k]) {
-        summary.notes.push_back(fmt::format("{} fit failed: {}", name, errors[k]));
-        continue;
-      }
-      add_fit_outputs(out, "fits/" + name + "/", *fits[k], fit_data, session.manifest.impactor.mass_kg);
-      if (options.models[k] == fitting::ModelKind::Model4) {
-        add_fit_outputs(out, "", *fits[k], fit_data, session.manifest.impactor.mass_kg);
-      }
-      if (options.models[k] == fitting::ModelKind::Model3 || options.models[k] == fitting::ModelKind::Model4) {
-        out.add("mat_" + name + ".mjcf.xml",
-                report::mjcf_xml(options.models[k], fits[k]->params, mat_geometry(session.manifest)));
-      }
-      for (const auto& w : fits[k]->warnings) summary.notes.push_back(name + ": " + w);
-      rep.fits.push_back(std::move(*fits[k]));
+      rep.fits.push_back(fit);
     }
   }
 
-  if (options.diagnose) {
-    say(summary.session, "closing the loop");
+  if (options.diagnose && summary.accepted > 0) {
+    tell("closing the loop");
     try {
-      const diagnosis::DiagnosisResult loop = diagnosis::diagnose(session);
+      const diagnosis::DiagnosisResult loop = diagnosis::diagnose(state);
       out.add("diagnosis.json", diagnosis::diagnosis_json(loop));
       rep.loop_run = true;
       rep.loop_baseline_model = loop.baseline_model;
       rep.loop_unexplained = loop.unexplained;
       for (const auto& e : loop.effects) {
         rep.loop_effects.push_back({e.stage, e.name, e.evidence, e.error_before, e.error_after});
+      }
+      for (const auto& stage : loop.not_assessed) {
+        summary.notes.push_back(fmt::format("closing the loop: {} not assessed: upstream unresolved", stage));
       }
     } catch (const std::exception& e) {
       summary.notes.push_back(fmt::format("closing the loop failed: {}", e.what()));

@@ -2,12 +2,14 @@
 // The wiring between stages: from what capture read to what each stage
 // takes, and on to the results. No numerics here (they live in the stages)
 // and no file writing (the commands commit an OutputSet).
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
 
 #include "calibration/calibration.h"
 #include "capture/session.h"
+#include "diagnosis/diagnosis.h"
 #include "reconstruction/reconstruction.h"
 #include "fitting/fit.h"
 #include "fitting/model5.h"
@@ -24,8 +26,13 @@ namespace dropfit::pipeline {
 std::vector<calibration::Marker> calibration_markers(const std::vector<CalibrationMarker>& frame);
 std::vector<calibration::CameraView> camera_views(const std::vector<CalibrationImage>& images);
 
-calibration::CalibrationResult calibrate_session(const Session& session,
-                                                 const calibration::CalibrationOptions& options = {});
+// The session's camera model as every stage and command uses it: the
+// calibration stage's choice (outliers, lens distortion, decided by
+// cross-validation on every marker; diagnosis.h), its `.after`.
+diagnosis::CalibrationDiagnosis choose_calibration(const Session& session);
+calibration::CalibrationResult calibrate_session(const Session& session);
+// A plain calibration with the given options (no choice made).
+calibration::CalibrationResult calibrate_session(const Session& session, const calibration::CalibrationOptions& options);
 
 std::vector<calibration::Camera> cameras_of(const calibration::CalibrationResult& result);
 
@@ -79,6 +86,20 @@ void add_fit_outputs(report::OutputSet& out, const std::string& prefix, const fi
 
 // The mat's layers as the MJCF export takes them (top = all but the last).
 report::MatGeometry mat_geometry(const Manifest& manifest);
+
+// The session state the loop runs on (diagnosis.h), built once: the
+// calibration stage's choice, every trial reconstructed with it and
+// analysed, the fits' data. No fits yet (fit_models adds them). `say`
+// reports progress (may be empty).
+diagnosis::SessionState session_state(const Session& session,
+                                      const std::function<void(const std::string&)>& say = {});
+
+// Fits `models` on state.fit_data into state.fits: the point-mass models in
+// parallel (`threads`), then Model 5 from Model 4's optimum with one start.
+// Returns one note per failed fit and per fit warning.
+std::vector<std::string> fit_models(diagnosis::SessionState& state, const Manifest& manifest,
+                                    const std::vector<fitting::ModelKind>& models, int threads = 1,
+                                    const std::function<void(const std::string&)>& say = {});
 
 // The main run of one session: calibrate, process every trial, fit every
 // model, close the loop, write the report. Results go into `out` (nothing

@@ -19,6 +19,8 @@ void add_reconstruct(CLI::App& app, CommandContext& /*ctx*/) {
   sub->add_option("--out", args->out, "output folder")->required();
   sub->callback([args] {
     const Session session = capture::read_session(args->session);
+    // The calibration stage's chosen camera model (distortion included):
+    // every point is undistorted with it before triangulation.
     const auto calibration = pipeline::calibrate_session(session);
     const auto cameras = pipeline::cameras_of(calibration);
 

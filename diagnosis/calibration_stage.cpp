@@ -1,10 +1,14 @@
-// The calibration stage of the loop: lens distortion and outlier markers,
-// judged on the check markers (see diagnosis.h).
+// The calibration stage of the loop: outlier markers (single, pairs, label
+// swaps) and lens distortion, each decided by leave-one-out cross-validation
+// on every marker, fit and check alike (see diagnosis.h).
 #include <fmt/format.h>
 
 #include <algorithm>
 #include <cmath>
 #include <map>
+#include <set>
+
+#include "calibration/triangulation.h"
 
 #include "core/error.h"
 #include "diagnosis/diagnosis.h"
@@ -80,196 +84,416 @@ ErrorSet check_errors(const calibration::CalibrationResult& r) {
   return {{"check_rms_mm", 1000.0 * rms}, {"check_max_mm", 1000.0 * r.check_max_m}};
 }
 
-// Per check marker 3-D error (mm), paired by id; markers missing on either
-// side are left out.
-void paired_check(const calibration::CalibrationResult& before, const calibration::CalibrationResult& after,
-                  Eigen::VectorXd* b, Eigen::VectorXd* a) {
-  std::vector<double> vb, va;
-  for (const auto& p : before.check_points)
-    for (const auto& q : after.check_points)
-      if (p.id == q.id) {
-        vb.push_back(1000.0 * p.error_m.norm());
-        va.push_back(1000.0 * q.error_m.norm());
-      }
-  *b = detail::to_vector(vb);
-  *a = detail::to_vector(va);
-}
+// ---- Leave-one-out cross-validation on every marker ------------------------
 
-// Fit RSS (pixels^2), equations and parameters over all cameras.
-struct FitSize {
-  double rss = 0.0;
-  double n = 0.0;
-  int k = 0;
+// The calibration observations as a table: seen[c][m], NaN when camera c
+// does not see marker m.
+struct Scene {
+  std::vector<calibration::Marker> markers;
+  std::vector<std::string> cameras;
+  std::vector<std::vector<Eigen::Vector2d>> seen;
+  int n_markers() const { return static_cast<int>(markers.size()); }
+  int n_cameras() const { return static_cast<int>(cameras.size()); }
 };
-FitSize fit_size(const calibration::CalibrationResult& r, const calibration::DltOptions& dlt) {
-  FitSize s;
-  const int per_camera = 11 + (dlt.fit_distortion ? std::clamp(dlt.radial_terms, 0, 3) + (dlt.tangential ? 2 : 0) : 0);
-  for (const auto& c : r.cameras) {
-    s.rss += c.fit_rms_px * c.fit_rms_px * c.n_fit_points;
-    s.n += 2.0 * c.n_fit_points;
-    s.k += per_camera;
+
+Scene scene_of(const std::vector<calibration::Marker>& markers, const std::vector<calibration::CameraView>& views) {
+  Scene s;
+  s.markers = markers;
+  std::map<std::string, int> index;
+  for (int m = 0; m < s.n_markers(); ++m) index[markers[static_cast<std::size_t>(m)].id] = m;
+  for (const auto& v : views) {
+    s.cameras.push_back(v.name);
+    std::vector<Eigen::Vector2d> row(markers.size(), Eigen::Vector2d::Constant(kNaN));
+    for (const auto& [id, px] : v.observations) {
+      const auto it = index.find(id);
+      if (it != index.end() && px.allFinite()) row[static_cast<std::size_t>(it->second)] = px;
+    }
+    s.seen.push_back(std::move(row));
   }
   return s;
 }
 
-std::vector<calibration::CameraView> without_marker(const std::vector<calibration::CameraView>& views,
-                                                    const std::string& id) {
+// A camera model hypothesis: markers left out of every fit, the DLT's terms.
+struct Model {
+  std::set<int> dropped;
+  calibration::DltOptions dlt;
+};
+
+int parameters_per_camera(const calibration::DltOptions& dlt) {
+  return 11 + (dlt.fit_distortion ? std::clamp(dlt.radial_terms, 0, 3) + (dlt.tangential ? 2 : 0) : 0);
+}
+
+std::string model_words(const calibration::DltOptions& dlt) {
+  if (!dlt.fit_distortion) return "DLT without distortion";
+  static const char* radial[] = {"", "k1", "k1 k2", "k1 k2 k3"};
+  return fmt::format("DLT with {}{}", radial[std::clamp(dlt.radial_terms, 0, 3)], dlt.tangential ? " p1 p2" : "");
+}
+
+// Every marker not dropped, held out in turn: each camera that sees it is
+// refitted on all the other (kept) markers, fit and check alike, and the
+// marker is triangulated with those refits. error_m is its 3-D error (NaN
+// when not judged); the all-marker fits give the RSS for the information
+// criterion; k1_loo holds each camera's k1 over its leave-one-out refits
+// (for a jackknife standard error).
+struct CrossValidation {
+  bool ok = false;
+  std::string failure;
+  Eigen::VectorXd error_m;
+  std::vector<calibration::Camera> full;
+  double rss_px2 = 0.0, n = 0.0;
+  int k = 0;
+  std::vector<std::vector<double>> k1_loo;
+  double rms_mm(const std::set<int>& skip = {}) const {
+    double sum = 0.0;
+    int n_used = 0;
+    for (Eigen::Index m = 0; m < error_m.size(); ++m)
+      if (std::isfinite(error_m(m)) && !skip.count(static_cast<int>(m))) {
+        sum += error_m(m) * error_m(m);
+        ++n_used;
+      }
+    return n_used > 0 ? 1000.0 * std::sqrt(sum / n_used) : kNaN;
+  }
+  double max_mm() const {
+    double mx = 0.0;
+    for (Eigen::Index m = 0; m < error_m.size(); ++m)
+      if (std::isfinite(error_m(m))) mx = std::max(mx, error_m(m));
+    return 1000.0 * mx;
+  }
+  double median_m() const {
+    std::vector<double> v;
+    for (Eigen::Index m = 0; m < error_m.size(); ++m)
+      if (std::isfinite(error_m(m))) v.push_back(error_m(m));
+    if (v.empty()) return kNaN;
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+    return v[v.size() / 2];
+  }
+};
+
+CrossValidation cross_validate(const Scene& s, const Model& model) {
+  CrossValidation cv;
+  const int nm = s.n_markers(), nc = s.n_cameras();
+  cv.error_m = Eigen::VectorXd::Constant(nm, kNaN);
+  cv.k1_loo.assign(static_cast<std::size_t>(nc), {});
+  auto fit = [&](int c, int skip) {
+    std::vector<calibration::Correspondence> pts;
+    for (int m = 0; m < nm; ++m) {
+      const auto& px = s.seen[static_cast<std::size_t>(c)][static_cast<std::size_t>(m)];
+      if (m == skip || model.dropped.count(m) || !px.allFinite()) continue;
+      pts.push_back({s.markers[static_cast<std::size_t>(m)].id, s.markers[static_cast<std::size_t>(m)].lab_m, px});
+    }
+    return calibration::fit_dlt(s.cameras[static_cast<std::size_t>(c)], pts, model.dlt);
+  };
+  try {
+    for (int c = 0; c < nc; ++c) {
+      const calibration::DltFit f = fit(c, -1);
+      cv.full.push_back(f.camera);
+      cv.rss_px2 += f.fit_rms_px * f.fit_rms_px * f.n_fit_points;
+      cv.n += 2.0 * f.n_fit_points;
+      cv.k += parameters_per_camera(model.dlt);
+    }
+    std::vector<calibration::Camera> cams = cv.full;
+    std::vector<Eigen::Vector2d> px(static_cast<std::size_t>(nc));
+    for (int m = 0; m < nm; ++m) {
+      if (model.dropped.count(m)) continue;
+      int seeing = 0;
+      for (int c = 0; c < nc; ++c) {
+        px[static_cast<std::size_t>(c)] = s.seen[static_cast<std::size_t>(c)][static_cast<std::size_t>(m)];
+        if (px[static_cast<std::size_t>(c)].allFinite()) {
+          cams[static_cast<std::size_t>(c)] = fit(c, m).camera;
+          if (cams[static_cast<std::size_t>(c)].has_distortion())
+            cv.k1_loo[static_cast<std::size_t>(c)].push_back(cams[static_cast<std::size_t>(c)].distortion[0]);
+          ++seeing;
+        }
+      }
+      if (seeing >= 2) {
+        const calibration::Triangulation tr = calibration::triangulate(cams, px, true);
+        cv.error_m(m) = (tr.lab_m - s.markers[static_cast<std::size_t>(m)].lab_m).norm();
+      }
+      cams = cv.full;
+    }
+    cv.ok = true;
+  } catch (const Error& e) {
+    cv.failure = e.what();
+  }
+  return cv;
+}
+
+// Jackknife standard error of a statistic from its leave-one-out values.
+double jackknife_se(const std::vector<double>& loo) {
+  const auto n = static_cast<double>(loo.size());
+  if (loo.size() < 2) return kNaN;
+  const double mean = detail::to_vector(loo).mean();
+  double ss = 0.0;
+  for (double v : loo) ss += (v - mean) * (v - mean);
+  return std::sqrt((n - 1.0) / n * ss);
+}
+
+std::vector<calibration::Marker> kept_markers(const Scene& s, const std::set<int>& dropped) {
+  std::vector<calibration::Marker> out;
+  for (int m = 0; m < s.n_markers(); ++m)
+    if (!dropped.count(m)) out.push_back(s.markers[static_cast<std::size_t>(m)]);
+  return out;
+}
+
+std::vector<calibration::CameraView> kept_views(const std::vector<calibration::CameraView>& views, const Scene& s,
+                                                const std::set<int>& dropped) {
+  std::set<std::string> ids;
+  for (int m : dropped) ids.insert(s.markers[static_cast<std::size_t>(m)].id);
   std::vector<calibration::CameraView> out = views;
   for (auto& v : out)
     v.observations.erase(std::remove_if(v.observations.begin(), v.observations.end(),
-                                        [&](const auto& o) { return o.first == id; }),
+                                        [&](const auto& o) { return ids.count(o.first) > 0; }),
                          v.observations.end());
   return out;
 }
 
-int cameras_seeing(const std::vector<calibration::CameraView>& views, const std::string& id) {
-  int n = 0;
-  for (const auto& v : views)
-    for (const auto& o : v.observations)
-      if (o.first == id && o.second.allFinite()) ++n;
-  return n;
+std::string marker_list(const Scene& s, const std::set<int>& ms) {
+  std::string out;
+  for (int m : ms) out += (out.empty() ? "" : " and ") + s.markers[static_cast<std::size_t>(m)].id;
+  return out;
 }
 
-double loo_residual(const calibration::CalibrationResult& r, const std::string& id) {
-  for (std::size_t i = 0; i < r.outliers.size(); ++i)
-    if (r.outliers[i] == id && i < r.outlier_error_m.size()) return r.outlier_error_m[i];
-  for (const auto& l : r.leave_one_out)
-    if (l.id == id) return l.residual_m;
-  return kNaN;
+// Is a pair a label swap in one camera? The pair's images in that camera
+// exchanged, nothing dropped: the camera whose swap brings both markers'
+// cross-validated errors within `limit_m`; "" when none does.
+std::string swap_camera(const Scene& s, const Model& model, int a, int b, double limit_m) {
+  for (int c = 0; c < s.n_cameras(); ++c) {
+    auto& row = s.seen[static_cast<std::size_t>(c)];
+    if (!row[static_cast<std::size_t>(a)].allFinite() || !row[static_cast<std::size_t>(b)].allFinite()) continue;
+    Scene swapped = s;
+    std::swap(swapped.seen[static_cast<std::size_t>(c)][static_cast<std::size_t>(a)],
+              swapped.seen[static_cast<std::size_t>(c)][static_cast<std::size_t>(b)]);
+    Model m = model;
+    m.dropped.erase(a);
+    m.dropped.erase(b);
+    const CrossValidation cv = cross_validate(swapped, m);
+    if (cv.ok && cv.error_m(a) < limit_m && cv.error_m(b) < limit_m) return s.cameras[static_cast<std::size_t>(c)];
+  }
+  return "";
 }
 
 }  // namespace
 
-CalibrationDiagnosis diagnose_calibration(const std::vector<calibration::Marker>& markers_in,
-                                          const std::vector<calibration::CameraView>& views_in,
+CalibrationDiagnosis diagnose_calibration(const std::vector<calibration::Marker>& markers,
+                                          const std::vector<calibration::CameraView>& views,
                                           const CalibrationStageOptions& options) {
   CalibrationDiagnosis out;
   const DecisionOptions& d = options.decision;
-  std::vector<calibration::Marker> markers = markers_in;
-  std::vector<calibration::CameraView> views = views_in;
-  calibration::CalibrationOptions opt = options.calibration;
-  calibration::CalibrationResult current = calibration::calibrate(markers, views, opt);
-  out.before = current;
-  if (current.check_points.size() < 3) {
-    out.notes.push_back(fmt::format("calibration: only {} check markers reconstructed; effects cannot be judged",
-                                    current.check_points.size()));
-    out.after = current;
-    out.options_after = opt;
+  const calibration::CalibrationOptions base = options.calibration;
+  out.before = calibration::calibrate(markers, views, base);
+  const Scene scene = scene_of(markers, views);
+
+  Model current{{}, base.dlt};
+  CrossValidation cv = cross_validate(scene, current);
+  if (!cv.ok) {
+    out.notes.push_back("calibration: leave-one-out cross-validation failed (" + cv.failure +
+                        "); effects cannot be judged");
+    out.after = out.before;
+    out.options_after = base;
     return out;
   }
+  const double min_outlier_m = base.min_outlier_m, ratio = base.outlier_ratio;
 
-  bool distortion_tried = opt.dlt.fit_distortion;
-  std::vector<std::string> outliers_tried;
-  for (int round = 0; round < 2 + options.max_outliers; ++round) {
-    // 1. Structure of the current residual.
-    const Reprojection rep = reprojection(current, markers, views);
-    const StructureReport radial = radial_structure(rep, d);
-    const TermScore* cube = radial.find("r^3");
-
-    // 2. Rank the candidates: the outlier's share of the leave-one-out
-    // residual variance, the radius' share of the radial residual's.
-    struct Option {
-      std::string name, marker;
-      double share;
+  // Forward selection: each round scores every candidate by cross-validation
+  // and keeps the passing one with the lowest held-out RMS.
+  bool distortion_done = current.dlt.fit_distortion, tangential_done = current.dlt.tangential && distortion_done;
+  for (int round = 0; round < 4; ++round) {
+    struct Cand {
+      std::string name;
+      Model model;
+      std::set<int> newly_dropped;
     };
-    std::vector<Option> ranked;
-    if (!distortion_tried && cube) ranked.push_back({"lens_distortion", "", cube->share_alone});
-    if (static_cast<int>(out.dropped_markers.size()) < options.max_outliers) {
-      double sum_sq = 0.0;
-      for (const auto& l : current.leave_one_out)
-        if (std::isfinite(l.residual_m)) sum_sq += l.residual_m * l.residual_m;
-      for (std::size_t i = 0; i < current.outliers.size(); ++i) {
-        const std::string& id = current.outliers[i];
-        if (std::find(outliers_tried.begin(), outliers_tried.end(), id) != outliers_tried.end()) continue;
-        const double e = loo_residual(current, id);
-        ranked.push_back({"outlier_marker", id, sum_sq > 0.0 ? std::min(1.0, e * e / (sum_sq + e * e)) : 1.0});
+    std::vector<Cand> cands;
+    // Lens distortion with as few terms as the markers support: k1 first
+    // (one more parameter per camera), then the tangential pair. Each camera
+    // must keep twice as many equations as parameters.
+    int min_seen = scene.n_markers();
+    for (int c = 0; c < scene.n_cameras(); ++c) {
+      int n = 0;
+      for (int m = 0; m < scene.n_markers(); ++m)
+        if (!current.dropped.count(m) && scene.seen[static_cast<std::size_t>(c)][static_cast<std::size_t>(m)].allFinite())
+          ++n;
+      min_seen = std::min(min_seen, n);
+    }
+    if (!distortion_done) {
+      Model m = current;
+      m.dlt.fit_distortion = true;
+      m.dlt.radial_terms = 1;
+      m.dlt.tangential = false;
+      if (2 * (min_seen - 1) >= 2 * parameters_per_camera(m.dlt)) cands.push_back({"lens_distortion", m, {}});
+    } else if (!tangential_done) {
+      Model m = current;
+      m.dlt.tangential = true;
+      if (2 * (min_seen - 1) >= 2 * parameters_per_camera(m.dlt)) cands.push_back({"lens_distortion", m, {}});
+    }
+    // Outliers: the markers with the largest held-out errors, alone and in
+    // pairs (a label slip swaps two markers, and both then stand out).
+    const int room = options.max_outliers - static_cast<int>(current.dropped.size());
+    if (room > 0) {
+      std::vector<int> order;
+      for (int m = 0; m < scene.n_markers(); ++m)
+        if (std::isfinite(cv.error_m(m))) order.push_back(m);
+      std::sort(order.begin(), order.end(), [&](int a, int b) { return cv.error_m(a) > cv.error_m(b); });
+      const double med = cv.median_m();
+      std::vector<int> top;
+      for (int m : order)
+        if (static_cast<int>(top.size()) < 4 && cv.error_m(m) > std::max(min_outlier_m, 2.0 * med)) top.push_back(m);
+      for (std::size_t i = 0; i < top.size(); ++i) {
+        Model m = current;
+        m.dropped.insert(top[i]);
+        cands.push_back({"outlier_marker", m, {top[i]}});
+        if (room < 2) continue;
+        for (std::size_t j = i + 1; j < top.size(); ++j) {
+          Model p = current;
+          p.dropped.insert(top[i]);
+          p.dropped.insert(top[j]);
+          cands.push_back({"outlier_marker", p, {top[i], top[j]}});
+        }
       }
     }
-    std::stable_sort(ranked.begin(), ranked.end(), [](const Option& a, const Option& b) { return a.share > b.share; });
-    if (ranked.empty()) break;
+    if (cands.empty()) break;
 
-    // 3. Try them in order; keep the first that passes both tests.
-    bool kept = false;
-    for (const Option& cand : ranked) {
-      std::vector<calibration::Marker> m2 = markers;
-      std::vector<calibration::CameraView> v2 = views;
-      calibration::CalibrationOptions o2 = opt;
-      if (cand.name == "lens_distortion") {
-        distortion_tried = true;
-        o2.dlt.fit_distortion = true;
-      } else {
-        outliers_tried.push_back(cand.marker);
-        m2.erase(std::remove_if(m2.begin(), m2.end(), [&](const auto& m) { return m.id == cand.marker; }), m2.end());
-        v2 = without_marker(views, cand.marker);
-      }
-      calibration::CalibrationResult next;
-      try {
-        next = calibration::calibrate(m2, v2, o2);
-      } catch (const Error& e) {
-        out.rejected.push_back({"calibration", cand.name, std::string("refit failed: ") + e.what()});
+    struct Scored {
+      const Cand* cand;
+      CrossValidation cv;
+      detail::Verdict verdict;
+      double rms_mm;
+    };
+    std::vector<Scored> passing;
+    std::vector<Rejected> round_rejected;
+    for (const Cand& cand : cands) {
+      CrossValidation next = cross_validate(scene, cand.model);
+      const std::string label = cand.name + (cand.newly_dropped.empty() ? " (" + model_words(cand.model.dlt) + ")"
+                                                                        : " " + marker_list(scene, cand.newly_dropped));
+      if (!next.ok) {
+        round_rejected.push_back({"calibration", label, "refit failed: " + next.failure});
         continue;
       }
-      Eigen::VectorXd hb, ha;
-      paired_check(current, next, &hb, &ha);
-      const FitSize small = fit_size(current, opt.dlt);
-      FitSize large = fit_size(next, o2.dlt);
-      if (cand.name == "outlier_marker") {
-        // Mean-shift outlier model on the same data: the marker keeps its
-        // images but gets two free coordinates per camera that sees it.
-        large.n = small.n;
-        large.k = small.k + 2 * cameras_seeing(views, cand.marker);
+      std::vector<double> hb, ha;
+      for (int m = 0; m < scene.n_markers(); ++m)
+        if (std::isfinite(cv.error_m(m)) && std::isfinite(next.error_m(m))) {
+          hb.push_back(1000.0 * cv.error_m(m));
+          ha.push_back(1000.0 * next.error_m(m));
+        }
+      double n_large = next.n;
+      int k_large = next.k;
+      if (!cand.newly_dropped.empty()) {
+        // Mean-shift outlier model on the same data: each dropped marker
+        // keeps its images but gets two free coordinates per camera.
+        n_large = cv.n;
+        for (int m : cand.newly_dropped)
+          for (int c = 0; c < scene.n_cameras(); ++c)
+            if (scene.seen[static_cast<std::size_t>(c)][static_cast<std::size_t>(m)].allFinite()) k_large += 2;
       }
-      const detail::Verdict v = detail::judge(hb, ha, 0.0, small.rss, small.k, large.rss, large.k, small.n, 0.0,
-                                              options.criterion, d);
+      const detail::Verdict v = detail::judge(detail::to_vector(hb), detail::to_vector(ha), 0.0, cv.rss_px2, cv.k,
+                                              next.rss_px2, k_large, std::max(cv.n, n_large), 0.0, options.criterion, d);
       if (!v.keep()) {
-        out.rejected.push_back({"calibration", cand.name + (cand.marker.empty() ? "" : " " + cand.marker),
-                                v.reason("check-marker error (mm)", options.criterion)});
+        round_rejected.push_back({"calibration", label, v.reason("cross-validated marker error (mm)", options.criterion)});
         continue;
       }
-      Effect e;
-      e.stage = "calibration";
-      e.name = cand.name;
-      e.error_before = check_errors(current);
-      e.error_after = check_errors(next);
-      e.error_before.push_back({"fit_rms_px", std::sqrt(small.rss / std::max(small.n / 2.0, 1.0))});
-      e.error_after.push_back({"fit_rms_px", std::sqrt(fit_size(next, o2.dlt).rss / std::max(fit_size(next, o2.dlt).n / 2.0, 1.0))});
-      if (cand.name == "lens_distortion") {
-        e.evidence = fmt::format(
-            "radial reprojection residual grows with the image radius cubed (r = {:.2f} over {} marker images); "
-            "refitted with Bouguet distortion (dlt16), {} {:.1f}",
-            cube ? cube->r : 0.0, rep.radial_px.size(), criterion_name(options.criterion), v.ic.delta);
-        for (const auto& c : next.cameras)
-          if (c.camera.has_distortion()) e.estimate.push_back({c.camera.name + "_k1", c.camera.distortion[0]});
-      } else {
-        const double loo = loo_residual(current, cand.marker);
-        e.evidence = fmt::format(
-            "marker {}'s leave-one-out residual is {:.1f} mm, {:.0f} x the median of the others ({:.2f} mm); "
-            "dropped from the fit, {} {:.1f}",
-            cand.marker, 1000.0 * loo, loo / std::max(current.outlier_baseline_m, 1e-12),
-            1000.0 * current.outlier_baseline_m, criterion_name(options.criterion), v.ic.delta);
-        e.estimate.push_back({"loo_residual_mm", 1000.0 * loo});
-        out.dropped_markers.push_back(cand.marker);
-      }
-      out.effects.push_back(std::move(e));
-      markers = std::move(m2);
-      views = std::move(v2);
-      opt = o2;
-      current = std::move(next);
-      kept = true;
+      const double r = next.rms_mm();
+      passing.push_back({&cand, std::move(next), v, r});
+    }
+    if (passing.empty()) {
+      out.rejected.insert(out.rejected.end(), round_rejected.begin(), round_rejected.end());
       break;
     }
-    if (!kept) break;
+    const auto best = std::min_element(passing.begin(), passing.end(),
+                                       [](const Scored& a, const Scored& b) { return a.rms_mm < b.rms_mm; });
+    const Cand& cand = *best->cand;
+    const CrossValidation& next = best->cv;
+
+    Effect e;
+    e.stage = "calibration";
+    e.name = cand.name;
+    const double fit_before = std::sqrt(cv.rss_px2 / std::max(cv.n / 2.0, 1.0));
+    const double fit_after = std::sqrt(next.rss_px2 / std::max(next.n / 2.0, 1.0));
+    e.error_before = {{"cv_rms_mm", cv.rms_mm(cand.newly_dropped)}, {"cv_max_mm", cv.max_mm()},
+                      {"fit_rms_px", fit_before}};
+    e.error_after = {{"cv_rms_mm", next.rms_mm()}, {"cv_max_mm", next.max_mm()}, {"fit_rms_px", fit_after}};
+    if (cand.name == "lens_distortion") {
+      std::string ks;
+      for (int c = 0; c < scene.n_cameras(); ++c) {
+        const calibration::Camera& cam = next.full[static_cast<std::size_t>(c)];
+        if (!cam.has_distortion()) continue;
+        const double se = jackknife_se(next.k1_loo[static_cast<std::size_t>(c)]);
+        e.estimate.push_back({cam.name + "_k1", cam.distortion[0]});
+        e.estimate.push_back({cam.name + "_k1_se", se});
+        if (cand.model.dlt.tangential) {
+          e.estimate.push_back({cam.name + "_p1", cam.distortion[2]});
+          e.estimate.push_back({cam.name + "_p2", cam.distortion[3]});
+        }
+        ks += fmt::format("{}{} k1 = {:.3f} +- {:.3f}", ks.empty() ? "" : ", ", cam.name, cam.distortion[0], se);
+      }
+      e.evidence = fmt::format(
+          "leave-one-out 3-D error over all {} markers falls from {:.2f} to {:.2f} mm RMS with the {} "
+          "(t = {:.1f}, {} {:+.1f}); {}",
+          static_cast<int>(best->verdict.held_out.mean_before > 0 ? (next.error_m.array().isFinite()).count() : 0), cv.rms_mm(), next.rms_mm(), model_words(cand.model.dlt), best->verdict.held_out.t,
+          criterion_name(options.criterion), best->verdict.ic.delta, ks);
+      if (cand.model.dlt.tangential) tangential_done = true;
+      distortion_done = true;
+    } else {
+      const double med = next.median_m();
+      std::string swap;
+      if (cand.newly_dropped.size() == 2) {
+        const int a = *cand.newly_dropped.begin(), b = *cand.newly_dropped.rbegin();
+        swap = swap_camera(scene, current, a, b, std::max(min_outlier_m, ratio * med));
+      }
+      std::string per;
+      for (int m : cand.newly_dropped) {
+        const std::string& id = scene.markers[static_cast<std::size_t>(m)].id;
+        e.estimate.push_back({id + "_loo_error_mm", 1000.0 * cv.error_m(m)});
+        per += fmt::format("{}{} {:.1f} mm", per.empty() ? "" : ", ", id, 1000.0 * cv.error_m(m));
+        out.dropped_markers.push_back(id);
+      }
+      e.estimate.push_back({"others_median_mm", 1000.0 * med});
+      e.estimate.push_back({"noise_px", fit_after});
+      e.evidence = fmt::format(
+          "{} stand{} out in leave-one-out on all markers ({}); with {} left out of every fit the others' "
+          "held-out error falls from {:.1f} to {:.2f} mm RMS (t = {:.1f}, {} {:+.1f}){}",
+          marker_list(scene, cand.newly_dropped), cand.newly_dropped.size() == 1 ? "s" : "", per,
+          cand.newly_dropped.size() == 1 ? "it" : "both", cv.rms_mm(cand.newly_dropped), next.rms_mm(),
+          best->verdict.held_out.t, criterion_name(options.criterion), best->verdict.ic.delta,
+          swap.empty() ? "" : fmt::format("; exchanging their images in {} fits as well: a label swap", swap));
+    }
+    out.effects.push_back(std::move(e));
+    current = cand.model;
+    cv = next;
   }
 
-  // 4. What remains: an outlier still named, or radial structure left.
-  for (const auto& id : current.outliers)
-    if (std::find(out.dropped_markers.begin(), out.dropped_markers.end(), id) == out.dropped_markers.end())
+  // The calibration every later stage uses: the fit markers (the protocol)
+  // less those dropped, with the chosen camera model.
+  calibration::CalibrationOptions opt = base;
+  opt.dlt = current.dlt;
+  try {
+    out.after = calibration::calibrate(kept_markers(scene, current.dropped), kept_views(views, scene, current.dropped),
+                                       opt);
+    out.options_after = opt;
+  } catch (const Error& e) {
+    out.notes.push_back(std::string("calibration: the chosen model could not be refitted on the fit markers (") +
+                        e.what() + "); the baseline is kept");
+    out.after = out.before;
+    out.options_after = base;
+  }
+  const ErrorSet check_before = check_errors(out.before), check_after = check_errors(out.after);
+  for (auto& e : out.effects) {
+    e.error_before.insert(e.error_before.begin(), check_before.begin(), check_before.end());
+    e.error_after.insert(e.error_after.begin(), check_after.begin(), check_after.end());
+  }
+
+  // 4. What remains: a marker that still stands out, or radial structure.
+  const double med = cv.median_m();
+  for (int m = 0; m < scene.n_markers(); ++m)
+    if (std::isfinite(cv.error_m(m)) && cv.error_m(m) > std::max(min_outlier_m, ratio * med))
       out.remaining.push_back({"calibration", "outlier_marker",
-                               fmt::format("marker {} still stands out ({:.1f} mm leave-one-out) but dropping it "
-                                           "did not improve the check markers",
-                                           id, 1000.0 * loo_residual(current, id))});
+                               fmt::format("marker {} still stands out ({:.1f} mm leave-one-out against a median "
+                                           "of {:.2f} mm) and no hypothesis explains it",
+                                           scene.markers[static_cast<std::size_t>(m)].id, 1000.0 * cv.error_m(m),
+                                           1000.0 * med)});
   {
-    const Reprojection rep = reprojection(current, markers, views);
+    const std::vector<calibration::Marker> km = kept_markers(scene, current.dropped);
+    const std::vector<calibration::CameraView> kv = kept_views(views, scene, current.dropped);
+    const Reprojection rep = reprojection(out.after, km, kv);
     const StructureReport radial = radial_structure(rep, d);
     const TermScore* cube = radial.find("r^3");
     const double mean_px = rep.distance_px.empty() ? 0.0 : detail::to_vector(rep.distance_px).mean();
@@ -281,8 +505,6 @@ CalibrationDiagnosis diagnose_calibration(const std::vector<calibration::Marker>
            fmt::format("reprojection residual still grows with the image radius (r = {:.2f}, mean {:.2f} px)", cube->r,
                        mean_px)});
   }
-  out.after = std::move(current);
-  out.options_after = opt;
   return out;
 }
 

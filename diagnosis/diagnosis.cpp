@@ -51,22 +51,6 @@ Eigen::VectorXd face_heights(const reconstruction::Trajectories& traj, const std
   return z;
 }
 
-// Linear interpolation of a per-frame series at a fractional frame; NaN when
-// either neighbour is missing or out of range.
-double at_frame(const Eigen::VectorXd& y, double frame) {
-  if (!(frame >= 0.0) || frame > static_cast<double>(y.size() - 1)) return kNaN;
-  const auto k = static_cast<Eigen::Index>(std::floor(frame));
-  if (k >= y.size() - 1) return y(y.size() - 1);
-  const double f = frame - static_cast<double>(k);
-  if (f == 0.0) return y(k);
-  return (1.0 - f) * y(k) + f * y(k + 1);
-}
-
-int index_of(const std::vector<std::string>& names, const std::string& name) {
-  const auto it = std::find(names.begin(), names.end(), name);
-  return it == names.end() ? -1 : static_cast<int>(it - names.begin());
-}
-
 }  // namespace
 
 const Effect* DiagnosisResult::find(const std::string& name) const {
@@ -118,184 +102,128 @@ std::string diagnosis_json(const DiagnosisResult& result) {
   j["rejected"] = nlohmann::ordered_json::array();
   for (const auto& r : result.rejected)
     j["rejected"].push_back({{"stage", r.stage}, {"name", r.name}, {"reason", r.reason}});
+  j["not_assessed"] = result.not_assessed;
   j["notes"] = result.notes;
   return j.dump(2) + "\n";
 }
 
-DiagnosisResult diagnose(const Session& session, const DiagnosisOptions& options) {
-  const Manifest& man = session.manifest;
+std::vector<PlateTrial> plate_trials(const SessionState& state, double offset_s) {
+  std::vector<PlateTrial> plates;
+  const double fps = state.frame_rate_hz;
+  for (const auto& tr : state.trials) {
+    if (!tr.force || !tr.result.accepted) continue;
+    const forceplate::ForceTrial& f = *tr.force;
+    PlateTrial p;
+    p.id = tr.result.id;
+    p.t_s = f.plate.t_s;
+    p.fz_n = f.plate.f_n.col(2);
+    p.noise_n = f.noise_n;
+    p.contact_time_s = f.contact_time_s;
+    p.end_time_s = f.end_time_s;
+    p.quiet_end_s = std::min(f.trigger_time_s, f.contact_time_s) - state.quiet_guard_s;
+    p.impact_velocity_m_s = tr.result.impact_velocity_m_s;
+    p.mat_top_z_m = state.mat_top_z_m;
+    p.max_deformation_time_s = tr.result.max_deformation_time_s;
+    const Eigen::VectorXd z = face_heights(tr.trajectories, state.base_markers, state.base_marker_height_m);
+    p.face_z_m = z;
+    p.video_t_s.resize(z.size());
+    for (Eigen::Index k = 0; k < z.size(); ++k)
+      p.video_t_s(k) = (static_cast<double>(k) - state.trigger_frame) / fps - offset_s;
+    plates.push_back(std::move(p));
+  }
+  return plates;
+}
+
+namespace {
+
+// Later stages left out because an earlier one could not explain its
+// residual: one note each, in the result and the report.
+void not_assessed(DiagnosisResult& result, const std::string& stage, const std::string& upstream) {
+  result.notes.push_back(fmt::format("{}: not assessed: upstream unresolved ({} residual unexplained)", stage,
+                                     upstream));
+  result.not_assessed.push_back(stage);
+}
+
+}  // namespace
+
+DiagnosisResult diagnose(const SessionState& state, const DiagnosisOptions& options) {
   DiagnosisResult result;
-  result.baseline_model = fitting::model_name(options.mat_stage.fit.model);
+  MatStageOptions mo = options.mat_stage;
+  if (!options.mat_stage_fit_set) mo.fit = state.baseline_fit_options;
+  result.baseline_model = fitting::model_name(mo.fit.model);
+  bool any = false;
+  for (const auto& t : state.trials) any = any || t.result.accepted;
+  if (!any) throw Error("closing the loop: no accepted trial");
 
-  // ---- calibration ----
-  std::vector<calibration::Marker> markers;
-  for (const auto& m : session.frame) markers.push_back({m.id, m.lab_m, m.role == MarkerRole::Check});
-  std::vector<calibration::CameraView> views;
-  for (const auto& image : session.images) {
-    calibration::CameraView view{image.camera, {}};
-    for (const auto& o : image.observations) view.observations.emplace_back(o.id, o.image_px);
-    views.push_back(std::move(view));
-  }
-  calibration::CalibrationResult cal;
-  if (options.calibration) {
-    const CalibrationDiagnosis cd = diagnose_calibration(markers, views, options.calibration_stage);
-    append(result, cd);
-    cal = cd.after;
-  } else {
-    cal = calibration::calibrate(markers, views, options.calibration_stage.calibration);
-  }
-  std::vector<calibration::Camera> cameras;
-  for (const auto& c : cal.cameras) cameras.push_back(c.camera);
-
-  // ---- every trial: reconstruction, force, trial analysis ----
-  trial::TrialOptions base_to;
-  base_to.impactor_mass_kg = man.impactor.mass_kg;
-  base_to.gravity_m_s2 = man.gravity_m_s2;
-  base_to.frame_rate_hz = man.video.frame_rate_hz;
-  base_to.trigger_frame = man.video.trigger_frame;
-  for (const auto& name : man.impactor.base_markers) base_to.base_markers.push_back(index_of(man.video.points, name));
-  for (const auto& name : man.mat.surface_markers) base_to.surface_markers.push_back(index_of(man.video.points, name));
-  base_to.point_names = man.video.points;
-  base_to.base_marker_height_m = man.impactor.base_marker_height_m;
-  base_to.mat_top_z_m = man.forceplate.mat_top_z_m;
-  if (options.max_tilt_deg > 0.0) base_to.max_tilt_deg = options.max_tilt_deg;
-
-  struct Bundle {
-    trial::TrialResult result;
-    forceplate::ForceTrial force;
-    reconstruction::Trajectories traj;
-    bool force_ok = false;
+  // Stages in order; the first whose residual stays unexplained stops the rest.
+  std::string unresolved;
+  auto gate = [&](const std::string& stage) {
+    if (unresolved.empty()) return true;
+    not_assessed(result, stage, unresolved);
+    return false;
   };
-  std::vector<Bundle> bundles;
-  forceplate::ProcessOptions po_base;
-  po_base.trigger_threshold_n = man.forceplate.trigger_threshold_n;
-  po_base.pretrigger_fraction = man.forceplate.pretrigger_fraction;
-  po_base.sample_rate_hz = man.forceplate.sample_rate_hz;
-  for (const auto& tr : session.trials) {
-    Bundle b;
-    b.traj = reconstruction::reconstruct(cameras, tr.tracks.uv_px, tr.tracks.n_points());
-    trial::TrialOptions to = base_to;
-    to.id = tr.spec.id;
-    forceplate::ProcessOptions po = po_base;
-    if (tr.force.pretrigger_samples > 0) po.pretrigger_samples = tr.force.pretrigger_samples;
-    try {
-      const forceplate::Resultants raw =
-          tr.force.layout == ForceLayout::EightChannel
-              ? forceplate::from_eight_channels(tr.force.t_s, tr.force.data,
-                                                {man.forceplate.a_m, man.forceplate.b_m, man.forceplate.az0_m})
-              : forceplate::from_resultant_columns(tr.force.t_s, tr.force.data, 50.0, man.forceplate.az0_m);
-      b.force = forceplate::process(raw, po);
-      b.force_ok = true;
-      b.result = trial::analyse(b.force, b.traj, to);
-    } catch (const Error& e) {
-      b.result.id = tr.spec.id;
-      b.result.accepted = false;
-      b.result.reject_reason = e.what();
-    }
-    if (!b.result.accepted)
-      result.notes.push_back(fmt::format("trial {} left out: {}", tr.spec.id, b.result.reject_reason));
-    bundles.push_back(std::move(b));
+
+  // ---- calibration (decided by the pipeline; every trial used its choice) ----
+  if (options.calibration) {
+    append(result, state.calibration);
+    if (!state.calibration.remaining.empty()) unresolved = "calibration";
   }
 
   // ---- sync ----
   double offset_s = 0.0;
-  if (options.sync) {
+  if (options.sync && gate("sync")) {
     std::vector<trial::TrialResult> results;
-    for (const auto& b : bundles) results.push_back(b.result);
+    for (const auto& t : state.trials) results.push_back(t.result);
     const SyncDiagnosis sd = diagnose_sync(results, options.sync_stage);
     append(result, sd);
     offset_s = sd.offset_s;
+    if (!sd.remaining.empty()) unresolved = "sync";
   }
 
   // ---- force plate ----
-  const double fps = man.video.frame_rate_hz;
-  const double mat_top = man.forceplate.mat_top_z_m;
   PlateCorrection correction;
-  std::vector<PlateTrial> plates;
-  std::vector<const Bundle*> used;
-  for (const auto& b : bundles) {
-    if (!b.force_ok || !b.result.accepted) continue;
-    PlateTrial p;
-    p.id = b.result.id;
-    p.t_s = b.force.plate.t_s;
-    p.fz_n = b.force.plate.f_n.col(2);
-    p.noise_n = b.force.noise_n;
-    p.contact_time_s = b.force.contact_time_s;
-    p.end_time_s = b.force.end_time_s;
-    p.quiet_end_s = std::min(b.force.trigger_time_s, b.force.contact_time_s) - po_base.quiet_guard_s;
-    p.impact_velocity_m_s = b.result.impact_velocity_m_s;
-    const Eigen::VectorXd z = face_heights(b.traj, base_to.base_markers, base_to.base_marker_height_m);
-    p.face_z_m = z;
-    p.video_t_s.resize(z.size());
-    for (Eigen::Index f = 0; f < z.size(); ++f)
-      p.video_t_s(f) = (static_cast<double>(f) - man.video.trigger_frame) / fps - offset_s;
-    plates.push_back(std::move(p));
-    used.push_back(&b);
-  }
-  ForceplateStageOptions fo = options.forceplate_stage;
-  fo.impactor_mass_kg = man.impactor.mass_kg;
-  fo.gravity_m_s2 = man.gravity_m_s2;
-  if (options.forceplate && !plates.empty()) {
-    const ForceplateDiagnosis fd = diagnose_forceplate(plates, fo);
-    append(result, fd);
-    correction = fd.correction;
+  const std::vector<PlateTrial> plates = plate_trials(state, offset_s);
+  if (options.forceplate && gate("forceplate")) {
+    ForceplateStageOptions fo = options.forceplate_stage;
+    fo.impactor_mass_kg = state.impactor_mass_kg;
+    fo.gravity_m_s2 = state.gravity_m_s2;
+    if (!plates.empty()) {
+      const ForceplateDiagnosis fd = diagnose_forceplate(plates, fo);
+      append(result, fd);
+      correction = fd.correction;
+      if (!fd.remaining.empty()) unresolved = "forceplate";
+    }
   }
 
-  // ---- mat ----
-  if (options.mat) {
+  // ---- mat: the fits' own data, with the plate corrections applied ----
+  if (options.mat && gate("mat")) {
     std::vector<fitting::TrialData> data;
-    for (std::size_t i = 0; i < used.size(); ++i) {
-      const Bundle& b = *used[i];
-      const PlateTrial& p = plates[i];
-      // The contact instant on the force clock from the video's free-fall fit
-      // and the session's clock relation (sub-sample, and free of the plate
-      // onset's threshold delay); the plate's onset when the video has none.
-      const double tc = std::isfinite(b.result.video_contact_time_s) ? b.result.video_contact_time_s - offset_s
-                                                                      : b.result.contact_time_s;
-      const Eigen::VectorXd f = correction.apply(p.t_s, p.fz_n, p.contact_time_s);
-      std::vector<Eigen::Index> keep;
-      for (Eigen::Index k = 0; k < p.t_s.size(); ++k)
-        if (p.t_s(k) >= tc - 0.005 && p.t_s(k) <= tc + 0.5) keep.push_back(k);
-      if (keep.size() < 3) continue;
-      fitting::TrialData td;
-      td.id = b.result.id;
-      td.accepted = true;
-      td.impact_velocity_m_s = b.result.impact_velocity_m_s;
-      td.impactor_mass_kg = man.impactor.mass_kg;
-      td.gravity_m_s2 = man.gravity_m_s2;
-      td.force_noise_n = p.noise_n / correction.gain;
-      td.marker_noise_m = b.result.freefall_rms_m;
-      const auto n = static_cast<Eigen::Index>(keep.size());
-      td.t_s.resize(n);
-      td.grf_n.resize(n);
-      td.impactor_m.resize(n);
-      td.surface_m.resize(n);
-      Eigen::VectorXd surface = Eigen::VectorXd::Constant(b.traj.n_frames(), kNaN);
-      if (!base_to.surface_markers.empty()) surface = face_heights(b.traj, base_to.surface_markers, 0.0);
-      for (Eigen::Index j = 0; j < n; ++j) {
-        const Eigen::Index k = keep[static_cast<std::size_t>(j)];
-        td.t_s(j) = p.t_s(k) - tc;
-        td.grf_n(j) = f(k);
-        const double frame = (p.t_s(k) + offset_s) * fps + man.video.trigger_frame;
-        td.impactor_m(j) = mat_top - at_frame(p.face_z_m, frame);
-        td.surface_m(j) = mat_top - at_frame(surface, frame);
+    for (std::size_t i = 0; i < state.fit_data.size() && i < state.trials.size(); ++i) {
+      const fitting::TrialData& d = state.fit_data[i];
+      if (!d.accepted) continue;
+      fitting::TrialData c = d;
+      const double tc = state.trials[i].result.contact_time_s;
+      if (correction.drift || correction.gain != 1.0) {
+        const Eigen::VectorXd t_abs = d.t_s.array() + tc;
+        c.grf_n = correction.apply(t_abs, d.grf_n, tc);
+        c.force_noise_n = d.force_noise_n / correction.gain;
       }
-      data.push_back(std::move(td));
+      data.push_back(std::move(c));
     }
-    MatStageOptions mo = options.mat_stage;
     if (!(mo.plate_noise_n > 0.0) && !plates.empty()) {
       double sum_sq = 0.0;
       for (const auto& p : plates) sum_sq += p.noise_n * p.noise_n;
       mo.plate_noise_n = std::sqrt(sum_sq / static_cast<double>(plates.size())) / correction.gain;
     }
-    const auto& layers = man.mat.layers;
-    if (layers.size() >= 2) {
-      mo.fit.m2_kg = layers.back().mass_kg;
-      mo.fit.m1_kg = 0.0;
-      for (std::size_t i = 0; i + 1 < layers.size(); ++i) mo.fit.m1_kg += layers[i].mass_kg;
+    // The run's own Model 4 fit is the baseline when the plate needed no
+    // correction (the same data, the same options): it is not refitted.
+    const fitting::FitResult* run_fit = state.fit(mo.fit.model);
+    if (run_fit && !correction.drift && correction.gain == 1.0 && mo.fit.model == state.baseline_fit_options.model)
+      mo.baseline = run_fit;
+    if (!data.empty()) {
+      const MatDiagnosis md = diagnose_mat(data, mo);
+      append(result, md);
     }
-    const MatDiagnosis md = diagnose_mat(data, mo);
-    append(result, md);
   }
   return result;
 }

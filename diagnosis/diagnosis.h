@@ -15,18 +15,34 @@
 //
 // Stages, candidate effects (names as in the spec's table) and held-out tests:
 //
-//   calibration  lens_distortion  residual: each marker's reprojection error
-//                                 (fit and check); structure: its radial part
-//                                 against the image radius cubed (Bouguet's k1
-//                                 r^3). Refit with distortion (dlt16).
-//                outlier_marker   a fit marker whose leave-one-out 3-D residual
-//                                 stands far beyond the rest (calibrate()'s
-//                                 outliers). Drop it, refit. Information
-//                                 criterion: the mean-shift outlier model (the
-//                                 marker's own 2 free coordinates per camera).
-//                held out: the check markers' 3-D errors (check_rms_mm,
-//                check_max_mm), paired per check marker; BIC on the fit's
-//                reprojection RSS.
+//   calibration  every hypothesis judged by leave-one-out cross-validation
+//                on ALL markers (fit and check alike): each marker held out in
+//                turn, every camera that sees it refitted on the others, the
+//                marker triangulated; its 3-D error is the held-out error.
+//                outlier_marker   the markers with the largest held-out errors
+//                                 (beyond 2 x the median and min_outlier_m),
+//                                 dropped alone or in pairs (a label slip
+//                                 swaps two markers, and both then stand
+//                                 out); a dropped pair is also tested as a
+//                                 label swap (its images exchanged in one
+//                                 camera) and named so when that fits.
+//                                 Information criterion: the mean-shift
+//                                 outlier model (two free coordinates per
+//                                 camera for each dropped marker).
+//                lens_distortion  Bouguet's radial k1 alone first (one
+//                                 parameter per camera), then p1 p2, each only
+//                                 while every camera keeps twice as many
+//                                 equations as parameters; k1 with its
+//                                 jackknife SE over the leave-one-out refits.
+//                Forward selection: each round every candidate is scored, the
+//                passing one (paired held-out drop over the markers both
+//                models judge, and BIC on the all-marker reprojection RSS)
+//                with the lowest held-out RMS is kept. The chosen model
+//                (markers dropped, distortion terms) is then fitted on the fit
+//                markers (the protocol) and used by every later stage and
+//                command (pipeline::calibrate_session). Errors: cv_rms_mm,
+//                cv_max_mm, fit_rms_px per step; check_rms_mm, check_max_mm of
+//                the baseline against the chosen calibration.
 //   sync         time_offset      the declared relation (video frame
 //                                 trigger_frame at the plate trigger, offset 0)
 //                                 against the trial stage's per-trial estimates
@@ -36,7 +52,10 @@
 //                                 plate force integrated twice), each trial
 //                                 judged with the offset estimated from the
 //                                 others (ms); AICc on the contact-instant
-//                                 disagreements.
+//                                 disagreements. The contact instant reads
+//                                 the plate's onset lag as offset, so below
+//                                 2 x onset_lag_s an offset counts only when
+//                                 the trajectory estimate shows it too.
 //   forceplate   baseline_drift   the zeroed Fz where it must be flat: the quiet
 //                                 pre-trigger part (0) and, after the contact,
 //                                 stretches where it holds still (0 with the
@@ -46,13 +65,23 @@
 //                                 contact. Held out: the later half of the
 //                                 post-contact quiet data, predicted from the
 //                                 rest (N).
-//                force_scale      impulse-momentum: from contact to an instant
-//                                 t_e after it where the mat is at rest again,
-//                                   integral Fz dt = m (v_in + v_e) + m g (t_e - t_c)
+//                force_scale      impulse-momentum: from the contact to an
+//                                 instant t_e in the impactor's free flight
+//                                 after separation, seen by the video (the
+//                                 video often ends before the plate is still):
+//                                   integral Fz dt = m (v_in + v_e) + m g (t_e - t_c) + P_mat(t_e)
 //                                 (v_e: the impactor's upward speed at t_e from
-//                                 a free-flight fit of the video, or 0 at rest);
-//                                 the plate's gain is the ratio. Held out:
-//                                 leave-one-trial-out ratio error (%).
+//                                 a free-flight fit of the video frames above
+//                                 the mat top). The mat's momentum P_mat is 0
+//                                 before the contact and small in flight; the
+//                                 ratio is averaged over every t_e in the
+//                                 flight window and its spread there bounds
+//                                 P_mat (reported, and in the uncertainty).
+//                                 Without a flight in the video: a still plate
+//                                 later in the record (impactor at rest, or in
+//                                 flight with the video fit). The plate's gain
+//                                 is the ratio. Held out: leave-one-trial-out
+//                                 ratio error (%).
 //   mat          stiffness_nonlinearity (k1_cubic_n_m3), hysteresis
 //                (r1_unload_n_s_m), rate_dependence (maxwell_k_n_m,
 //                maxwell_tau_s), layer_mass (masses free, total fixed):
@@ -92,6 +121,7 @@
 #include <functional>
 #include <optional>
 #include <limits>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -141,6 +171,9 @@ struct DiagnosisResult {
   std::vector<Remaining> remaining;
   std::vector<Rejected> rejected;
   std::vector<std::string> notes;  // stages skipped, fallbacks used
+  // Stages not assessed because an earlier stage's residual stayed
+  // unexplained ("upstream unresolved"; a note says which).
+  std::vector<std::string> not_assessed;
   std::string report() const;    // a few human lines
   const Effect* find(const std::string& name) const;
 };
@@ -194,6 +227,13 @@ struct SyncStageOptions {
   // systematic uncertainty of the contact-instant method (1 mm of mat-top
   // height is 0.2 ms at 5 m/s).
   double systematic_s = 0.2e-3;
+  // The plate's force onset lags the video contact on a mat with mass
+  // (0.4-0.55 ms on layered mats; trial.h), and the contact-instant method
+  // reads that lag as clock offset. So an offset counts on the contact
+  // instant alone only beyond twice this; below, the contact-phase
+  // trajectory estimate (which does not use the onset) must show it too:
+  // beyond max(min_offset_s, 3 SE), with the same sign.
+  double onset_lag_s = 1.0e-3;
 };
 
 struct SyncDiagnosis {
@@ -222,6 +262,8 @@ struct PlateTrial {
   double quiet_end_s = 0.0;         // the pre-trigger quiet part ends here (forceplate's guard)
   double impact_velocity_m_s = std::numeric_limits<double>::quiet_NaN();  // downward, from video
   Eigen::VectorXd video_t_s, face_z_m;  // contact face height, force clock; NaN gaps
+  double mat_top_z_m = std::numeric_limits<double>::quiet_NaN();  // undeformed mat top (lab z)
+  double max_deformation_time_s = std::numeric_limits<double>::quiet_NaN();  // force clock
 };
 
 struct PlateCorrection {
@@ -234,6 +276,23 @@ struct PlateCorrection {
   // Corrected force: (fz - drift(t)) / gain; contact_time_s is the trial's.
   Eigen::VectorXd apply(const Eigen::VectorXd& t_s, const Eigen::VectorXd& fz_n, double contact_time_s) const;
 };
+
+// The impulse-momentum balance of one trial ending in the impactor's free
+// flight after separation (see the top of this file): the ratio's mean over
+// every force sample in the free-flight window, and how much it moves across
+// that window (the mat's own momentum, which the balance leaves out, bounds
+// the error: the mat is at rest before the contact and nearly at rest in the
+// impactor's flight, and whatever it still carries shows as that spread).
+struct ImpulseBalance {
+  double ratio = std::numeric_limits<double>::quiet_NaN();   // plate impulse / impactor momentum change
+  double spread = std::numeric_limits<double>::quiet_NaN();  // SD of the ratio over the window
+  double mat_momentum_n_s = std::numeric_limits<double>::quiet_NaN();  // RMS of the unexplained momentum
+  double window_start_s = 0.0, window_end_s = 0.0;             // force clock
+  int flight_frames = 0;
+  std::string method;  // "free flight" or "still plate"
+};
+ImpulseBalance impulse_balance(const PlateTrial& trial, const PlateCorrection& correction, double impactor_mass_kg,
+                               double gravity_m_s2);
 
 struct ForceplateStageOptions {
   DecisionOptions decision;
@@ -357,22 +416,64 @@ TableDiagnosis diagnose_table(const std::vector<fitting::TableTrial>& trials, co
 
 // ---- A whole session ---------------------------------------------------------
 
-struct DiagnosisOptions {
-  bool calibration = true, sync = true, forceplate = true, mat = true;
-  CalibrationStageOptions calibration_stage;
-  SyncStageOptions sync_stage;
-  ForceplateStageOptions forceplate_stage;  // impactor mass and gravity taken from the manifest
-  MatStageOptions mat_stage;                // masses taken from the manifest's layers
-  double max_tilt_deg = 0.0;                // > 0 overrides trial::TrialOptions::max_tilt_deg
+// One trial as the pipeline processed it: everything later stages need.
+struct TrialState {
+  trial::TrialResult result;
+  reconstruction::Trajectories trajectories;  // with the calibration stage's chosen camera model
+  std::optional<forceplate::ForceTrial> force;  // the processed force record; empty when unreadable
 };
 
-// The session as capture read it (or synth made it): calibrates, reconstructs,
-// analyses every trial, then runs the stages in order, each on the output of
-// the stages before with their kept effects applied (a distortion-corrected
-// calibration feeds the reconstruction; drift and gain corrections feed the
-// mat fit). Throws dropfit::Error when the session cannot be calibrated or no
-// trial is accepted.
-DiagnosisResult diagnose(const Session& session, const DiagnosisOptions& options = {});
+// The session state, built once by the pipeline (cli/pipeline.h,
+// pipeline::session_state and pipeline::fit_models) and handed to the loop,
+// so that diagnosis.json and fit.json describe the same data and fit.
+struct SessionState {
+  std::string name;
+  // The manifest's constants the stages use.
+  double impactor_mass_kg = 24.0;
+  double gravity_m_s2 = 9.81;
+  double frame_rate_hz = 0.0;
+  int trigger_frame = 0;            // video frame at the plate trigger (declared relation)
+  double mat_top_z_m = 0.0;
+  double base_marker_height_m = 0.0;
+  std::vector<int> base_markers, surface_markers;  // point indices
+  double quiet_guard_s = 0.050;     // forceplate::ProcessOptions::quiet_guard_s
+  // The calibration stage's decision; calibration.after is the calibration
+  // every trial was reconstructed with.
+  CalibrationDiagnosis calibration;
+  std::vector<TrialState> trials;   // in session order
+  // The fits' input (pipeline::fitting_trial of every trial, accepted or
+  // not, in session order) and the fits made of it.
+  std::vector<fitting::TrialData> fit_data;
+  fitting::FitOptions baseline_fit_options;  // Model 4 with the manifest's masses
+  std::vector<fitting::FitResult> fits;      // every model fitted, in the order asked
+  const fitting::FitResult* fit(fitting::ModelKind model) const {
+    for (const auto& f : fits)
+      if (f.model == model) return &f;
+    return nullptr;
+  }
+};
+
+struct DiagnosisOptions {
+  bool calibration = true, sync = true, forceplate = true, mat = true;
+  SyncStageOptions sync_stage;
+  ForceplateStageOptions forceplate_stage;  // impactor mass and gravity taken from the state
+  MatStageOptions mat_stage;                // fit options: the state's baseline unless mat_stage_fit_set
+  bool mat_stage_fit_set = false;           // true: mat_stage.fit as given (tests)
+};
+
+// The loop on a session state: the calibration stage's decision (already
+// taken by the pipeline, which reconstructed every trial with it), then
+// sync, force plate and mat, in that order, each on the output of the
+// stages before with their kept effects applied (drift and gain
+// corrections feed the mat data). A stage whose residual stays
+// unexplained (remaining structure) leaves every later stage "not
+// assessed: upstream unresolved" (a note, and no effects named from bad
+// inputs). Throws dropfit::Error when no trial is accepted.
+DiagnosisResult diagnose(const SessionState& state, const DiagnosisOptions& options = {});
+
+// The plate stage's trials from a state, on the force clock with the
+// declared clock relation shifted by offset_s (video minus force).
+std::vector<PlateTrial> plate_trials(const SessionState& state, double offset_s);
 
 // Merges a stage's diagnosis into the result (unexplained when the stage has
 // remaining structure).

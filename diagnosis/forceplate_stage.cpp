@@ -173,6 +173,89 @@ double impulse_ratio(const PlateTrial& t, const PlateCorrection& c, double mass_
   return momentum > 0.0 ? impulse / momentum : nan;
 }
 
+namespace {
+
+// Least squares of free flight z = z0 + v (t - t_ref) - g (t - t_ref)^2 / 2
+// (g known) over the given frames: v at t_ref and the fit's RMS.
+bool flight_fit(const std::vector<double>& ts, const std::vector<double>& zs, double t_ref, double g, double* v,
+                double* z0, double* rms) {
+  const auto n = static_cast<Eigen::Index>(ts.size());
+  if (n < 3) return false;
+  Eigen::MatrixXd a(n, 2);
+  Eigen::VectorXd b(n);
+  for (Eigen::Index k = 0; k < n; ++k) {
+    const double dt = ts[static_cast<std::size_t>(k)] - t_ref;
+    a(k, 0) = 1.0;
+    a(k, 1) = dt;
+    b(k) = zs[static_cast<std::size_t>(k)] + 0.5 * g * dt * dt;
+  }
+  const Eigen::Vector2d x = a.colPivHouseholderQr().solve(b);
+  *z0 = x(0);
+  *v = x(1);
+  *rms = std::sqrt((b - a * x).squaredNorm() / static_cast<double>(n));
+  return true;
+}
+
+}  // namespace
+
+ImpulseBalance impulse_balance(const PlateTrial& t, const PlateCorrection& c, double mass_kg, double g) {
+  ImpulseBalance out;
+  const Eigen::Index n = t.t_s.size();
+  if (n < 10 || !std::isfinite(t.impact_velocity_m_s) || !std::isfinite(t.mat_top_z_m)) return out;
+  const Eigen::VectorXd f = c.apply(t.t_s, t.fz_n, t.contact_time_s);
+  // The flight: video frames after the deepest point with the face clear of
+  // the mat top (5 mm: a few marker-noise SDs above the undeformed surface).
+  const double clearance_m = 0.005;
+  const double after = std::isfinite(t.max_deformation_time_s) ? t.max_deformation_time_s : t.contact_time_s;
+  std::vector<double> ts, zs;
+  for (Eigen::Index k = 0; k < t.video_t_s.size(); ++k) {
+    if (t.video_t_s(k) <= after || !std::isfinite(t.face_z_m(k))) continue;
+    if (t.face_z_m(k) > t.mat_top_z_m + clearance_m) {
+      ts.push_back(t.video_t_s(k));
+      zs.push_back(t.face_z_m(k));
+    } else if (!ts.empty()) {
+      break;  // landed again: the flight is over
+    }
+  }
+  // At least 10 frames (10 ms at 1 kHz) of flight for a velocity.
+  if (ts.size() < 10) return out;
+  double v_ref, z0, rms;
+  const double t_ref = ts.front();
+  if (!flight_fit(ts, zs, t_ref, g, &v_ref, &z0, &rms) || !(v_ref > 0.0)) return out;
+  out.flight_frames = static_cast<int>(ts.size());
+  out.window_start_s = ts.front();
+  out.window_end_s = ts.back();
+  // Plate impulse from 10 ms before the contact (the plate reads the mat at
+  // rest there) to every force sample in the flight window.
+  const double dt = (t.t_s(n - 1) - t.t_s(0)) / static_cast<double>(n - 1);
+  const double t0 = t.contact_time_s - 0.010;
+  Eigen::Index i = 0;
+  while (i + 1 < n && t.t_s(i + 1) <= t0) ++i;
+  double impulse = 0.0;
+  std::vector<double> ratios, excess;
+  for (; i + 1 < n && t.t_s(i + 1) <= out.window_end_s; ++i) {
+    impulse += 0.5 * (f(i) + f(i + 1)) * dt;
+    const double te = t.t_s(i + 1);
+    if (te < out.window_start_s) continue;
+    const double v_up = v_ref - g * (te - t_ref);
+    // From t0 the impactor fell freely to the contact, so its downward speed
+    // at t0 was v_in - g (t_c - t0); impulse = momentum change + m g (te - t0)
+    // = m (v_in + v_up) + m g (te - t_c).
+    const double momentum = mass_kg * (t.impact_velocity_m_s + v_up) + mass_kg * g * (te - t.contact_time_s);
+    if (!(momentum > 0.0)) continue;
+    ratios.push_back(impulse / momentum);
+    excess.push_back(impulse - momentum);
+  }
+  if (ratios.size() < 5) return out;
+  const Eigen::VectorXd r = detail::to_vector(ratios);
+  out.ratio = r.mean();
+  out.spread = detail::sample_sd(r);
+  const Eigen::VectorXd e = detail::to_vector(excess);
+  out.mat_momentum_n_s = std::sqrt((e.array() - e.mean()).square().mean());
+  out.method = "free flight";
+  return out;
+}
+
 ForceplateDiagnosis diagnose_forceplate(const std::vector<PlateTrial>& trials, const ForceplateStageOptions& o) {
   ForceplateDiagnosis out;
   const DecisionOptions& d = o.decision;
@@ -291,7 +374,26 @@ ForceplateDiagnosis diagnose_forceplate(const std::vector<PlateTrial>& trials, c
                         {"heldout_still_rms_n", detail::rms(held_b)}};
       e.error_after = {{"still_rms_n", std::sqrt(slope.rss / static_cast<double>(rows.size()))},
                        {"heldout_still_rms_n", detail::rms(held_a)}};
-      e.estimate = {{"drift_n_s", slope.slope}};
+      // The slope's SE: the residual SD over the drift column's spread about
+      // each trial's own mean (the intercepts absorb the rest), with the
+      // AR(1) effective sample size.
+      double sxx = 0.0;
+      {
+        std::vector<double> sum(static_cast<std::size_t>(nt), 0.0), cnt(static_cast<std::size_t>(nt), 0.0);
+        for (const auto& row : rows) {
+          sum[static_cast<std::size_t>(row.trial)] += row.column;
+          cnt[static_cast<std::size_t>(row.trial)] += 1.0;
+        }
+        for (const auto& row : rows) {
+          const double m = sum[static_cast<std::size_t>(row.trial)] / std::max(cnt[static_cast<std::size_t>(row.trial)], 1.0);
+          sxx += (row.column - m) * (row.column - m);
+        }
+      }
+      const double sigma = std::sqrt(slope.rss / std::max(static_cast<double>(rows.size()) - nt - 1.0, 1.0));
+      const double inflate = std::sqrt((1.0 + std::max(rho1, 0.0)) / (1.0 - std::min(std::max(rho1, 0.0), 0.99)));
+      const double slope_se = sxx > 0.0 ? sigma / std::sqrt(sxx) * inflate : kNaN;
+      e.estimate = {{"drift_n_s", slope.slope}, {"drift_n_s_se", slope_se}};
+      e.evidence += fmt::format(" +- {:.2f} N/s", slope_se);
       out.effects.push_back(std::move(e));
       out.correction.drift = true;
       out.correction.drift_from_contact = from_contact;
@@ -314,16 +416,26 @@ ForceplateDiagnosis diagnose_forceplate(const std::vector<PlateTrial>& trials, c
                ? fmt::format("the still parts of Fz oscillate at {:.1f} Hz ({:.1f} N amplitude, {:.0f} % of their "
                              "variance)",
                              pk.frequency_hz, pk.amplitude, 100.0 * pk.share)
-               : fmt::format("the still parts of Fz are not flat ({:.1f} N RMS against {:.1f} N noise, rho1 = {:.2f})",
-                             rms_left, noise, w.rho1())});
+               : fmt::format("the still parts of Fz are not flat ({:.1f} N RMS against {:.1f} N noise, rho1 = {:.2f}; "
+                             "strongest frequency {:.1f} Hz)",
+                             rms_left, noise, w.rho1(), pk.frequency_hz)});
     }
   }
 
   // ---- force_scale ----
-  std::vector<double> ratios;
+  std::vector<double> ratios, spreads, mat_momenta;
   std::vector<std::string> ids;
+  int by_flight = 0;
   for (const auto& t : trials) {
-    const double r = impulse_ratio(t, out.correction, o.impactor_mass_kg, o.gravity_m_s2);
+    const ImpulseBalance b = impulse_balance(t, out.correction, o.impactor_mass_kg, o.gravity_m_s2);
+    double r = b.ratio;
+    if (std::isfinite(r)) {
+      ++by_flight;
+      spreads.push_back(b.spread);
+      mat_momenta.push_back(b.mat_momentum_n_s);
+    } else {
+      r = impulse_ratio(t, out.correction, o.impactor_mass_kg, o.gravity_m_s2);
+    }
     out.impulse_ratios.push_back(r);
     if (std::isfinite(r)) {
       ratios.push_back(r);
@@ -332,14 +444,17 @@ ForceplateDiagnosis diagnose_forceplate(const std::vector<PlateTrial>& trials, c
   }
   const auto nr = static_cast<Eigen::Index>(ratios.size());
   if (nr < 2) {
-    out.notes.push_back(fmt::format("forceplate: impulse-momentum ratio available for {} trial(s); force scale "
-                                    "cannot be judged",
+    out.notes.push_back(fmt::format("forceplate: impulse-momentum ratio available for {} trial(s) (no free flight "
+                                    "after separation in the video, no still plate); force scale cannot be judged",
                                     nr));
     return out;
   }
   const Eigen::VectorXd rho = detail::to_vector(ratios);
   const double gain = rho.mean();
-  const double se = detail::sample_sd(rho) / std::sqrt(static_cast<double>(nr));
+  // Between-trial scatter, and the mat's momentum left in each trial's
+  // balance (the ratio's spread over its flight window), both in the SE.
+  const double mat_bound = spreads.empty() ? 0.0 : detail::rms(detail::to_vector(spreads));
+  const double se = std::hypot(detail::sample_sd(rho), mat_bound) / std::sqrt(static_cast<double>(nr));
   Eigen::VectorXd before(nr), after(nr);
   for (Eigen::Index i = 0; i < nr; ++i) {
     before(i) = 100.0 * std::abs(rho(i) - 1.0);
@@ -355,18 +470,22 @@ ForceplateDiagnosis diagnose_forceplate(const std::vector<PlateTrial>& trials, c
     e.name = "force_scale";
     e.evidence = fmt::format(
         "the plate's impulse over the contact is {:.1f} % {} the impactor's momentum change from video in every "
-        "trial ({:.3f} to {:.3f} over {}): plate gain {:.3f} +- {:.3f}",
+        "trial ({:.4f} to {:.4f} over {}): plate gain {:.4f} +- {:.4f}",
         100.0 * std::abs(gain - 1.0), gain > 1.0 ? "above" : "below", rho.minCoeff(), rho.maxCoeff(), nr, gain, se);
     e.error_before = {{"impulse_error_pct_rms", detail::rms(before)}, {"impulse_error_pct_max", detail::max_abs(before)}};
     e.error_after = {{"impulse_error_pct_rms", detail::rms(after)}, {"impulse_error_pct_max", detail::max_abs(after)}};
     e.estimate = {{"gain", gain}, {"gain_se", se}};
+    if (!mat_momenta.empty())
+      e.estimate.push_back({"mat_momentum_bound_n_s", detail::rms(detail::to_vector(mat_momenta))});
+    e.evidence += fmt::format("; balance ends in the impactor's free flight after separation in {} of {} trials",
+                              by_flight, nr);
     out.effects.push_back(std::move(e));
     out.correction.gain = gain;
   } else if (stands_out) {
     out.rejected.push_back({"forceplate", "force_scale", v.reason("impulse error (%)", Criterion::AICc)});
   } else {
     out.rejected.push_back({"forceplate", "force_scale",
-                            fmt::format("impulse/momentum {:.3f} +- {:.3f}: within max({:.0f} %, 3 SE) of 1", gain, se,
+                            fmt::format("impulse/momentum {:.4f} +- {:.4f}: within max({:.0f} %, 3 SE) of 1", gain, se,
                                         100.0 * o.min_scale_error)});
   }
   const double scatter = detail::sample_sd(rho) / gain;

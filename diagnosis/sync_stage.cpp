@@ -44,8 +44,27 @@ SyncDiagnosis diagnose_sync(const std::vector<trial::TrialResult>& trials, const
   // 1-2. Structure: the declared relation's residual is the estimates
   // themselves; a common offset is the one candidate.
   const double ms = 1000.0;
-  const bool stands_out =
-      std::abs(mean) > std::max(options.min_offset_s, 3.0 * out.offset_se_s);
+  bool stands_out = std::abs(mean) > std::max(options.min_offset_s, 3.0 * out.offset_se_s);
+  // Beyond the onset lag, or supported by the trajectory estimate.
+  std::string lag_reason;
+  if (stands_out && std::abs(mean) <= 2.0 * options.onset_lag_s) {
+    bool supported = false;
+    if (have_independent) {
+      const double te = e.mean();
+      const double te_se = std::hypot(detail::sample_sd(e) / std::sqrt(static_cast<double>(n)), options.systematic_s);
+      supported = std::abs(te) > std::max(options.min_offset_s, 3.0 * te_se) && te * mean > 0.0;
+      lag_reason = fmt::format(
+          "mean offset {:.2f} ms from the contact instant is within 2 x {:.1f} ms of the plate's onset lag and the "
+          "contact-phase trajectory estimate ({:.2f} +- {:.2f} ms) does not support it",
+          ms * mean, ms * options.onset_lag_s, ms * te, ms * te_se);
+    } else {
+      lag_reason = fmt::format(
+          "mean offset {:.2f} ms from the contact instant is within 2 x {:.1f} ms of the plate's onset lag, and no "
+          "trajectory estimate is available to support it",
+          ms * mean, ms * options.onset_lag_s);
+    }
+    if (!supported) stands_out = false;
+  }
 
   // 3. Held out: each trial's independent estimate against the declared
   // relation (before) and the offset from the other trials (after).
@@ -70,10 +89,15 @@ SyncDiagnosis diagnose_sync(const std::vector<trial::TrialResult>& trials, const
     eff.error_before = {{"offset_error_ms_rms", detail::rms(before)}, {"offset_error_ms_max", detail::max_abs(before)}};
     eff.error_after = {{"offset_error_ms_rms", detail::rms(after)}, {"offset_error_ms_max", detail::max_abs(after)}};
     eff.estimate = {{"video_offset_ms", ms * mean}, {"video_offset_se_ms", ms * out.offset_se_s}};
+    // The contact instant carries the plate's onset lag; the trajectory
+    // estimate does not (but reads the mat's accelerated mass): both shown.
+    if (have_independent) eff.estimate.push_back({"video_offset_trajectory_ms", ms * e.mean()});
     out.effects.push_back(std::move(eff));
     out.offset_s = mean;
   } else if (stands_out) {
     out.rejected.push_back({"sync", "time_offset", v.reason("clock-offset error (ms)", Criterion::AICc)});
+  } else if (!lag_reason.empty()) {
+    out.rejected.push_back({"sync", "time_offset", lag_reason});
   } else {
     out.rejected.push_back(
         {"sync", "time_offset",

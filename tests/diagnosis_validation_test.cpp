@@ -1,0 +1,173 @@
+// The diagnosis stages on the independent validation sessions
+// (../shared/validation, see its README): what each must name and what it
+// must not. Skipped when ../shared is absent.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <filesystem>
+
+#include "capture/io.h"
+#include "cli/pipeline.h"
+#include "diagnosis/diagnosis.h"
+
+namespace dropfit::diagnosis {
+namespace {
+
+std::string validation(const std::string& name) {
+  return std::string(DROPFIT_SOURCE_DIR) + "/../shared/validation/" + name + "/session";
+}
+
+bool have(const std::string& name) { return std::filesystem::exists(validation(name)); }
+
+CalibrationDiagnosis calibration_of(const std::string& name) {
+  const Session s = capture::read_session(validation(name));
+  return diagnose_calibration(pipeline::calibration_markers(s.frame), pipeline::camera_views(s.images));
+}
+
+bool named(const std::vector<Effect>& effects, const std::string& name) {
+  for (const auto& e : effects)
+    if (e.name == name) return true;
+  return false;
+}
+
+std::string report(const CalibrationDiagnosis& d) {
+  DiagnosisResult r;
+  append(r, d);
+  return r.report();
+}
+
+TEST(ValidationCalibration, CleanSessionsNameNothing) {
+  for (const std::string name : {"v1-realistic", "v2-linear-control", "v3-hysteresis", "v4-rate",
+                                 "v6-formats-drift-scale"}) {
+    if (!have(name)) GTEST_SKIP() << "../shared/validation absent";
+    const CalibrationDiagnosis d = calibration_of(name);
+    EXPECT_TRUE(d.effects.empty()) << name << "\n" << report(d);
+    EXPECT_TRUE(d.remaining.empty()) << name << "\n" << report(d);
+  }
+}
+
+TEST(ValidationCalibration, SwappedPairAndLensDistortion) {
+  if (!have("v5-outlier-lens-offset")) GTEST_SKIP() << "../shared/validation absent";
+  const CalibrationDiagnosis d = calibration_of("v5-outlier-lens-offset");
+  std::cerr << report(d);
+  EXPECT_TRUE(named(d.effects, "outlier_marker")) << report(d);
+  EXPECT_TRUE(named(d.effects, "lens_distortion")) << report(d);
+  EXPECT_TRUE(d.remaining.empty()) << report(d);
+}
+
+}  // namespace
+}  // namespace dropfit::diagnosis
+
+namespace dropfit::diagnosis {
+namespace {
+
+// Calibration, sync and force plate on the pipeline's state (the mat stage
+// is the lead's, tested elsewhere): exactly the session's injected effects
+// of those stages.
+std::vector<std::string> upstream_effects(const std::string& name, DiagnosisResult* out = nullptr) {
+  const Session s = capture::read_session(validation(name));
+  const SessionState state = pipeline::session_state(s);
+  DiagnosisOptions o;
+  o.mat = false;
+  const DiagnosisResult r = diagnose(state, o);
+  std::vector<std::string> names;
+  for (const auto& e : r.effects) names.push_back(e.name);
+  std::sort(names.begin(), names.end());
+  if (out) *out = r;
+  return names;
+}
+
+TEST(ValidationUpstream, EachSessionNamesExactlyItsInjectedEffects) {
+  const std::vector<std::pair<std::string, std::vector<std::string>>> cases{
+      {"v1-realistic", {}},
+      {"v2-linear-control", {}},
+      {"v3-hysteresis", {}},
+      {"v4-rate", {}},
+      {"v5-outlier-lens-offset", {"lens_distortion", "outlier_marker", "time_offset"}},
+      {"v6-formats-drift-scale", {"baseline_drift", "force_scale"}}};
+  for (const auto& [name, expected] : cases) {
+    if (!have(name)) GTEST_SKIP() << "../shared/validation absent";
+    DiagnosisResult r;
+    EXPECT_EQ(upstream_effects(name, &r), expected) << name << "\n" << r.report();
+    EXPECT_FALSE(r.unexplained) << name << "\n" << r.report();
+    std::cerr << name << "\n" << r.report();
+  }
+}
+
+}  // namespace
+}  // namespace dropfit::diagnosis
+
+namespace dropfit::diagnosis {
+namespace {
+
+double value(const ErrorSet& e, const std::string& key) {
+  for (const auto& [k, v] : e)
+    if (k == key) return v;
+  ADD_FAILURE() << "no value " << key;
+  return std::numeric_limits<double>::quiet_NaN();
+}
+
+// v5: cam1's c13 and c15 swapped, k1 = -0.10 on both cameras, video 3 ms ahead.
+TEST(ValidationUpstream, V5ParametersAndHeldOutErrors) {
+  if (!have("v5-outlier-lens-offset")) GTEST_SKIP() << "../shared/validation absent";
+  DiagnosisResult r;
+  upstream_effects("v5-outlier-lens-offset", &r);
+  const Effect* outlier = r.find("outlier_marker");
+  ASSERT_NE(outlier, nullptr) << r.report();
+  EXPECT_NE(outlier->evidence.find("c13 and c15"), std::string::npos) << outlier->evidence;
+  EXPECT_NE(outlier->evidence.find("label swap"), std::string::npos) << outlier->evidence;
+  // The target: check RMS back under 1 mm once the pair is out.
+  EXPECT_GT(value(outlier->error_before, "check_rms_mm"), 10.0);
+  EXPECT_LT(value(outlier->error_after, "check_rms_mm"), 1.0);
+  const Effect* lens = r.find("lens_distortion");
+  ASSERT_NE(lens, nullptr) << r.report();
+  // k1 = -0.10 injected; 18 markers at 0.2 px give a jackknife SE of about
+  // 0.02-0.03, and the DLT absorbs a little of it: within 0.05.
+  EXPECT_NEAR(value(lens->estimate, "cam1_k1"), -0.10, 0.05);
+  EXPECT_NEAR(value(lens->estimate, "cam2_k1"), -0.10, 0.05);
+  EXPECT_LT(value(lens->error_after, "cv_rms_mm"), 0.8 * value(lens->error_before, "cv_rms_mm"));
+  const Effect* offset = r.find("time_offset");
+  ASSERT_NE(offset, nullptr) << r.report();
+  // 3 ms injected; the contact instant reads the plate's onset lag
+  // (0.4-0.55 ms on this layered mat) with it.
+  EXPECT_NEAR(value(offset->estimate, "video_offset_ms"), 3.0, 0.7);
+}
+
+// v6: drift 25 N over the 5 s record, all channels scaled by 1.05.
+TEST(ValidationUpstream, V6ParametersAndHeldOutErrors) {
+  if (!have("v6-formats-drift-scale")) GTEST_SKIP() << "../shared/validation absent";
+  DiagnosisResult r;
+  upstream_effects("v6-formats-drift-scale", &r);
+  const Effect* drift = r.find("baseline_drift");
+  ASSERT_NE(drift, nullptr) << r.report();
+  // 5 N/s; 1.5 N noise over thousands of still samples: within 0.5 N/s.
+  EXPECT_NEAR(value(drift->estimate, "drift_n_s"), 5.0, 0.5);
+  EXPECT_LT(value(drift->error_after, "heldout_still_rms_n"), 0.5 * value(drift->error_before, "heldout_still_rms_n"));
+  const Effect* scale = r.find("force_scale");
+  ASSERT_NE(scale, nullptr) << r.report();
+  // The target: the scale within 0.5 %.
+  EXPECT_NEAR(value(scale->estimate, "gain"), 1.05, 0.005);
+  EXPECT_LT(value(scale->estimate, "gain_se"), 0.005);
+  EXPECT_LT(value(scale->error_after, "impulse_error_pct_rms"), 0.2 * value(scale->error_before, "impulse_error_pct_rms"));
+}
+
+// Clean sessions: the free-flight balance gives 1 within 0.5 % on each.
+TEST(ValidationUpstream, ImpulseBalanceIsOneOnCleanSessions) {
+  for (const std::string name : {"v1-realistic", "v2-linear-control", "v3-hysteresis", "v4-rate"}) {
+    if (!have(name)) GTEST_SKIP() << "../shared/validation absent";
+    const Session s = capture::read_session(validation(name));
+    const SessionState state = pipeline::session_state(s);
+    int n = 0;
+    for (const PlateTrial& t : plate_trials(state, 0.0)) {
+      const ImpulseBalance b = impulse_balance(t, {}, state.impactor_mass_kg, state.gravity_m_s2);
+      if (!std::isfinite(b.ratio)) continue;
+      ++n;
+      EXPECT_NEAR(b.ratio, 1.0, 0.005) << name << " " << t.id;
+      EXPECT_EQ(b.method, "free flight");
+    }
+    EXPECT_GE(n, 3) << name;
+  }
+}
+
+}  // namespace
+}  // namespace dropfit::diagnosis
