@@ -311,6 +311,16 @@ std::vector<std::string> fit_models(diagnosis::SessionState& state, const Manife
   return notes;
 }
 
+void apply_fitted_offset(trial::TrialResult& result, const fitting::FitResult& fit) {
+  if (!std::isfinite(result.video_offset_s)) return;
+  for (const auto& t : fit.trials) {
+    if (t.id != result.id || !std::isfinite(t.contact_shift_se_s)) continue;
+    result.video_offset_onset_s = result.video_offset_s;
+    result.video_offset_s -= t.contact_shift_s;
+    result.video_offset_se_s = t.contact_shift_se_s;
+  }
+}
+
 RunSummary run_session(const std::string& session_dir, const RunOptions& options, report::OutputSet& out,
                        Progress* progress) {
   auto say = [&](const std::string& stage, const std::string& detail = "") {
@@ -328,12 +338,10 @@ RunSummary run_session(const std::string& session_dir, const RunOptions& options
   add_calibration_outputs(out, state.calibration.after, session.manifest.video);
   std::vector<trial::TrialResult> results;
   for (const auto& t : state.trials) {
-    add_trial_outputs(out, {t.trajectories, t.result, trial_options(session.manifest, t.result.id), t.force});
     summary.accepted += t.result.accepted ? 1 : 0;
     results.push_back(t.result);
   }
   summary.trials = static_cast<int>(results.size());
-  out.add("summary.csv", report::summary_csv(results));
 
   report::SessionReport rep;
   rep.session_name = summary.session;
@@ -360,11 +368,16 @@ RunSummary run_session(const std::string& session_dir, const RunOptions& options
     }
   }
 
+  std::optional<fitting::FitResult> closed_loop;
   if (options.diagnose && summary.accepted > 0) {
     tell("closing the loop");
     try {
       const diagnosis::DiagnosisResult loop = diagnosis::diagnose(state);
       out.add("diagnosis.json", diagnosis::diagnosis_json(loop));
+      if (loop.mat_fit) {
+        closed_loop = loop.mat_fit;
+        add_fit_outputs(out, "fits/closed_loop/", *closed_loop, state.fit_data, session.manifest.impactor.mass_kg);
+      }
       rep.loop_run = true;
       rep.loop_baseline_model = loop.baseline_model;
       rep.loop_unexplained = loop.unexplained;
@@ -378,6 +391,18 @@ RunSummary run_session(const std::string& session_dir, const RunOptions& options
       summary.notes.push_back(fmt::format("closing the loop failed: {}", e.what()));
     }
   }
+  // Each trial's clock offset from the contact instant the mat fit placed on
+  // the force clock (the closed loop's model when it kept mat effects, else
+  // Model 4), replacing the plate-onset estimate, which reads late on a
+  // layered mat.
+  const fitting::FitResult* sync_fit = closed_loop ? &*closed_loop : state.fit(fitting::ModelKind::Model4);
+  for (size_t i = 0; i < results.size(); ++i) {
+    trial::TrialResult& r = results[i];
+    if (sync_fit) apply_fitted_offset(r, *sync_fit);
+    add_trial_outputs(out, {state.trials[i].trajectories, r, trial_options(session.manifest, r.id), state.trials[i].force});
+  }
+  out.add("summary.csv", report::summary_csv(results));
+  rep.trials = results;
   for (const auto& r : results) {
     if (!r.accepted) summary.notes.push_back(fmt::format("trial {} rejected: {}", r.id, r.reject_reason));
   }

@@ -71,6 +71,10 @@ void add_trial_outputs(report::OutputSet& out, const TrialOutcome& outcome);
 // Fz, the impactor face travel below the undeformed mat top and the mat
 // surface travel (both NaN in gaps).
 fitting::TrialData fitting_trial(const Manifest& manifest, const trial::TrialResult& result);
+// The trial's video_offset_s from the contact instant `fit` placed on the
+// force clock (its contact_shift_s), with its SE; the plate-onset estimate
+// moves to video_offset_onset_s. Unchanged when the fit has no shift for it.
+void apply_fitted_offset(trial::TrialResult& result, const fitting::FitResult& fit);
 
 // Model 5's geometry from the manifest (mat and impactor footprint).
 fitting::Model5Geometry model5_geometry(const Manifest& manifest);

@@ -223,6 +223,7 @@ DiagnosisResult diagnose(const SessionState& state, const DiagnosisOptions& opti
     if (!data.empty()) {
       const MatDiagnosis md = diagnose_mat(data, mo);
       append(result, md);
+      if (!md.effects.empty() && md.fit_after) result.mat_fit = md.fit_after;
     }
   }
   return result;

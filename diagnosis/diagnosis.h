@@ -174,6 +174,9 @@ struct DiagnosisResult {
   // Stages not assessed because an earlier stage's residual stayed
   // unexplained ("upstream unresolved"; a note says which).
   std::vector<std::string> not_assessed;
+  // The mat fit with the kept mat effects (absent when the mat stage did not
+  // run or kept nothing): the closed loop's model of the mat.
+  std::optional<fitting::FitResult> mat_fit;
   std::string report() const;    // a few human lines
   const Effect* find(const std::string& name) const;
 };

@@ -148,6 +148,8 @@ std::string trial_json(const trial::TrialResult& r) {
               {"time_to_peak_s", number_or_null(r.time_to_peak_s)},
               {"contact_time_s", number_or_null(r.contact_time_s)},
               {"video_offset_s", number_or_null(r.video_offset_s)},
+              {"video_offset_se_s", number_or_null(r.video_offset_se_s)},
+              {"video_offset_onset_s", number_or_null(r.video_offset_onset_s)},
               {"video_offset_trajectory_s", number_or_null(r.video_offset_trajectory_s)},
               {"video_contact_time_s", number_or_null(r.video_contact_time_s)},
               {"max_deformation_time_s", number_or_null(r.max_deformation_time_s)},

@@ -155,6 +155,10 @@ struct TrialResult {
   double time_to_peak_s = std::numeric_limits<double>::quiet_NaN();  // from contact
   double contact_time_s = std::numeric_limits<double>::quiet_NaN();  // force clock
   double video_offset_s = std::numeric_limits<double>::quiet_NaN();  // video clock minus force clock
+  // When the mat fit placed the contact on the force clock (the main run):
+  // its standard error, and the estimate from the plate's onset it replaced.
+  double video_offset_se_s = std::numeric_limits<double>::quiet_NaN();
+  double video_offset_onset_s = std::numeric_limits<double>::quiet_NaN();
 
   // Beyond trial.json's minimum.
   double video_offset_trajectory_s = std::numeric_limits<double>::quiet_NaN();  // second estimate
