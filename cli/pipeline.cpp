@@ -72,6 +72,7 @@ trial::TrialOptions trial_options(const Manifest& manifest, const std::string& t
   options.point_names = manifest.video.points;
   options.base_marker_height_m = manifest.impactor.base_marker_height_m;
   options.mat_top_z_m = manifest.forceplate.mat_top_z_m;
+  options.mat_mass_kg = manifest.mat.mass_kg();
   return options;
 }
 
@@ -219,6 +220,7 @@ RunSummary run_session(const std::string& session_dir, const RunOptions& options
   const auto calibration = calibrate_session(session);
   add_calibration_outputs(out, calibration);
   const auto cameras = cameras_of(calibration);
+  const auto calibration_quality = trial::calibration_quality(calibration);
 
   std::vector<trial::TrialResult> results;
   std::vector<fitting::TrialData> fit_data;
@@ -226,6 +228,8 @@ RunSummary run_session(const std::string& session_dir, const RunOptions& options
     const auto& trial = session.trials[i];
     say(summary.session, fmt::format("trial {} ({}/{})", trial.spec.id, i + 1, session.trials.size()));
     auto outcome = process_trial(session.manifest, trial, cameras);
+    trial::apply_calibration_gates(outcome.result, outcome.trajectories,
+                                   trial_options(session.manifest, trial.spec.id), calibration_quality);
     add_trial_outputs(out, outcome);
     fit_data.push_back(fitting_trial(session.manifest, outcome.result));
     summary.accepted += outcome.result.accepted ? 1 : 0;
@@ -286,6 +290,7 @@ RunSummary run_session(const std::string& session_dir, const RunOptions& options
       const auto name = fitting::model_name(options.models[k]);
       if (!fits[k]) {
         summary.notes.push_back(fmt::format("{} fit failed: {}", name, errors[k]));
+        ++summary.failed_fits;
         continue;
       }
       add_fit_outputs(out, "fits/" + name + "/", *fits[k], fit_data, session.manifest.impactor.mass_kg);
