@@ -36,7 +36,14 @@ std::vector<calibration::CameraView> camera_views(const std::vector<CalibrationI
 
 calibration::CalibrationResult calibrate_session(const Session& session,
                                                  const calibration::CalibrationOptions& options) {
-  return calibration::calibrate(calibration_markers(session.frame), camera_views(session.images), options);
+  try {
+    return calibration::calibrate(calibration_markers(session.frame), camera_views(session.images), options);
+  } catch (const InputError&) {
+    throw;
+  } catch (const Error& e) {
+    // Geometry failures (too few points, a degenerate frame) name the files.
+    throw Error(fmt::format("{}/calibration (frame.csv and the camera files): {}", session.root, e.what()));
+  }
 }
 
 std::vector<calibration::Camera> cameras_of(const calibration::CalibrationResult& result) {
