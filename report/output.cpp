@@ -53,6 +53,27 @@ bool exchange(const fs::path& a, const fs::path& b) {
 #endif
 }
 
+// A folder written by dropfit before the marker existed: every entry at its
+// top is a name dropfit writes (or a temporary of one).
+bool written_by_older_dropfit(const fs::path& dir) {
+  static const char* const names[] = {"calibration.json", "dlt_coefficients.csv", "summary.csv", "trials",
+                                      "fit.json", "fits", "series", "diagnosis.json", "mat_model3.mjcf.xml",
+                                      "mat_model4.mjcf.xml", "report.html", "archive.csv", "archive.html"};
+  std::error_code ec;
+  bool any = false;
+  for (const auto& e : fs::directory_iterator(dir, ec)) {
+    const std::string n = e.path().filename().string();
+    const bool folder = n == "trials" || n == "fits" || n == "series";
+    // Folders where dropfit writes folders, regular files elsewhere; never a link.
+    if (e.is_symlink(ec) || (folder ? !e.is_directory(ec) : !e.is_regular_file(ec))) return false;
+    bool known = n.find(".tmp-") != std::string::npos;
+    for (const char* name : names) known = known || n == name;
+    if (!known) return false;
+    any = true;
+  }
+  return any && !ec;
+}
+
 }  // namespace
 
 void OutputSet::commit(const std::string& out_dir, const std::vector<std::string>& protected_dirs) const {
@@ -87,7 +108,7 @@ void OutputSet::commit(const std::string& out_dir, const std::vector<std::string
     }
     if (!fs::is_directory(status)) throw Error(fmt::format("output folder '{}' is a file, not a folder", out_dir));
     const bool empty = fs::is_empty(target, ec);
-    if (!empty && !fs::exists(fs::symlink_status(target / kOutputMarker, ec))) {
+    if (!empty && !fs::exists(fs::symlink_status(target / kOutputMarker, ec)) && !written_by_older_dropfit(target)) {
       throw Error(fmt::format("output folder '{}' already holds files dropfit did not write; name a new or empty "
                               "folder (a folder dropfit wrote is replaced whole)",
                               out_dir));

@@ -6,8 +6,9 @@
 // renames), so the output folder holds exactly this set: an error before
 // the swap leaves it as it was, and a re-run leaves no stale file of an
 // earlier one. A committed folder carries the marker file kOutputMarker; an
-// existing output folder without it is refused unless empty (dropfit never
-// replaces a folder it did not write). A session folder is never written
+// existing output folder without it is refused unless empty or holding only
+// names dropfit writes (results of a version before the marker): dropfit
+// never replaces a folder it did not write. A session folder is never written
 // into, whatever symbolic links the output folder held: the old folder is
 // removed (its links with it, never followed), never written into.
 #include <map>

@@ -47,9 +47,11 @@ TEST(OutputSetCommit, ReplacesAnEarlierCommitWholeAndRefusesForeignFolders) {
   EXPECT_FALSE(fs::exists(out / "trials"));  // stale folder of the first commit gone
   EXPECT_TRUE(fs::exists(out / report::kOutputMarker));
   // Nothing but the output folder beside it (no staging or old folder left).
-  int entries = 0;
-  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
-  EXPECT_EQ(entries, 1);
+  {
+    int entries = 0;
+    for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
+    EXPECT_EQ(entries, 1);
+  }
 
   // A folder holding someone else's files is refused, untouched.
   const fs::path foreign = dir / "foreign";
@@ -57,6 +59,14 @@ TEST(OutputSetCommit, ReplacesAnEarlierCommitWholeAndRefusesForeignFolders) {
   write_text(foreign / "thesis.tex", "keep me");
   EXPECT_THROW(second.commit(foreign.string()), Error);
   EXPECT_EQ(read_text(foreign / "thesis.tex"), "keep me");
+  // Results of a dropfit before the marker (only names dropfit writes) are replaced.
+  const fs::path legacy = dir / "legacy";
+  fs::create_directories(legacy / "trials" / "t1");
+  write_text(legacy / "report.html", "old");
+  write_text(legacy / "calibration.json", "{}");
+  second.commit(legacy.string());
+  EXPECT_EQ(read_text(legacy / "a.txt"), "2");
+  EXPECT_FALSE(fs::exists(legacy / "report.html"));
   // A name that would leave the output folder is refused.
   report::OutputSet escape;
   escape.add("../escaped.txt", "x");
