@@ -43,7 +43,14 @@ calibration::CalibrationResult calibrate_session(const Session& session) { retur
 
 calibration::CalibrationResult calibrate_session(const Session& session,
                                                  const calibration::CalibrationOptions& options) {
-  return calibration::calibrate(calibration_markers(session.frame), camera_views(session.images), options);
+  try {
+    return calibration::calibrate(calibration_markers(session.frame), camera_views(session.images), options);
+  } catch (const InputError&) {
+    throw;
+  } catch (const Error& e) {
+    // Geometry failures (too few points, a degenerate frame) name the files.
+    throw Error(fmt::format("{}/calibration (frame.csv and the camera files): {}", session.root, e.what()));
+  }
 }
 
 std::vector<calibration::Camera> cameras_of(const calibration::CalibrationResult& result) {
@@ -84,6 +91,7 @@ trial::TrialOptions trial_options(const Manifest& manifest, const std::string& t
   options.point_names = manifest.video.points;
   options.base_marker_height_m = manifest.impactor.base_marker_height_m;
   options.mat_top_z_m = manifest.forceplate.mat_top_z_m;
+  options.mat_mass_kg = manifest.mat.mass_kg();
   return options;
 }
 
@@ -251,10 +259,14 @@ diagnosis::SessionState session_state(const Session& session, const std::functio
   if (say) say("calibrating");
   state.calibration = choose_calibration(session);
   const auto cameras = cameras_of(state.calibration.after);
+  // Trials measured through a calibration that failed its own checks, or
+  // whose markers reproject far beyond it, are rejected (trial.h's gates).
+  const auto quality = trial::calibration_quality(state.calibration.after);
   for (size_t i = 0; i < session.trials.size(); ++i) {
     const auto& trial = session.trials[i];
     if (say) say(fmt::format("trial {} ({}/{})", trial.spec.id, i + 1, session.trials.size()));
     TrialOutcome outcome = process_trial(man, trial, cameras);
+    trial::apply_calibration_gates(outcome.result, outcome.trajectories, trial_options(man, trial.spec.id), quality);
     state.fit_data.push_back(fitting_trial(man, outcome.result));
     state.trials.push_back({std::move(outcome.result), std::move(outcome.trajectories), std::move(outcome.force)});
   }
@@ -355,6 +367,7 @@ RunSummary run_session(const std::string& session_dir, const RunOptions& options
   } else {
     const auto notes = fit_models(state, session.manifest, options.models, options.threads, tell);
     summary.notes.insert(summary.notes.end(), notes.begin(), notes.end());
+    summary.failed_fits += static_cast<int>(options.models.size()) - static_cast<int>(state.fits.size());
     for (const auto& fit : state.fits) {
       const auto name = fitting::model_name(fit.model);
       add_fit_outputs(out, "fits/" + name + "/", fit, state.fit_data, session.manifest.impactor.mass_kg);

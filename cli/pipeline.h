@@ -120,6 +120,7 @@ struct RunOptions {
 struct RunSummary {
   std::string session;
   int trials = 0, accepted = 0;
+  int failed_fits = 0;  // models whose fit threw (each named in notes)
   std::vector<std::string> notes;
 };
 RunSummary run_session(const std::string& session_dir, const RunOptions& options, report::OutputSet& out,

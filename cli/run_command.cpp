@@ -8,6 +8,7 @@
 #include <chrono>
 #include <filesystem>
 #include <mutex>
+#include <set>
 #include <thread>
 
 #include "cli/command.h"
@@ -36,21 +37,42 @@ void add_run(CLI::App& app, CommandContext& ctx) {
     const auto start = std::chrono::steady_clock::now();
     const int cores = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
     const int jobs = args->jobs > 0 ? args->jobs : cores;
-    const size_t n = args->sessions.size();
-
     pipeline::RunOptions options;
     options.diagnose = !args->no_diagnose;
-    // One session: its models in parallel. Several: sessions in parallel.
-    options.threads = n == 1 ? jobs : 1;
 
+    // The same folder named twice is one session.
+    {
+      std::vector<std::string> unique_sessions;
+      std::set<std::string> seen;
+      for (const auto& s : args->sessions) {
+        std::error_code ec;
+        if (seen.insert(fs::weakly_canonical(s, ec).string()).second) unique_sessions.push_back(s);
+      }
+      args->sessions = std::move(unique_sessions);
+    }
+    const size_t n = args->sessions.size();
     Progress progress;
     std::vector<std::string> out_dirs(n), errors(n);
     std::vector<pipeline::RunSummary> summaries(n);
     std::vector<bool> ok(n, false);
-    // Session names must not collide when several go under one folder.
+    // Each session its own folder, even when two session folders share a
+    // name (a/demo and b/demo go to OUT/demo and OUT/demo-2).
+    std::set<std::string> taken;
     for (size_t i = 0; i < n; ++i) {
-      out_dirs[i] = n == 1 ? args->out : (fs::path(args->out) / fs::path(args->sessions[i]).filename()).string();
+      if (n == 1) {
+        out_dirs[i] = args->out;
+        continue;
+      }
+      std::string base = fs::path(args->sessions[i]).lexically_normal().filename().string();
+      if (base.empty() || base == "." || base == "..") base = fs::weakly_canonical(args->sessions[i]).filename().string();
+      if (base.empty()) base = "session";
+      std::string name = base;
+      for (int k = 2; taken.count(name); ++k) name = fmt::format("{}-{}", base, k);
+      taken.insert(name);
+      out_dirs[i] = (fs::path(args->out) / name).string();
     }
+    // One session: its models in parallel. Several: sessions in parallel.
+    options.threads = n == 1 ? jobs : 1;
     std::atomic<size_t> next{0};
     std::vector<std::thread> workers;
     for (int w = 0; w < std::min<int>(jobs, static_cast<int>(n)); ++w) {
@@ -61,7 +83,18 @@ void add_run(CLI::App& app, CommandContext& ctx) {
             summaries[i] = pipeline::run_session(args->sessions[i], options, out, &progress);
             std::vector<std::string> protected_dirs(args->sessions.begin(), args->sessions.end());
             out.commit(out_dirs[i], protected_dirs);
-            ok[i] = true;
+            // Results are written (the report says why), but a session with
+            // no usable trial or a failed model fit is not a success.
+            const auto& s = summaries[i];
+            if (s.accepted == 0) {
+              errors[i] = fmt::format("no usable trial ({} of {} rejected, reasons in {}/report.html)", s.trials,
+                                      s.trials, out_dirs[i]);
+            } else if (s.failed_fits > 0) {
+              errors[i] = fmt::format("{} model fit(s) failed (see the notes and {}/report.html)", s.failed_fits,
+                                      out_dirs[i]);
+            } else {
+              ok[i] = true;
+            }
           } catch (const std::exception& e) {
             errors[i] = e.what();
           }
@@ -77,7 +110,7 @@ void add_run(CLI::App& app, CommandContext& ctx) {
       if (!ok[i]) {
         ++failed;
         fmt::print(stderr, "dropfit: error: session {}: {}\n", args->sessions[i], errors[i]);
-        continue;
+        if (summaries[i].trials == 0 && summaries[i].session.empty()) continue;  // nothing ran
       }
       const auto& s = summaries[i];
       fmt::print("{}: {} of {} trials accepted; report {}/report.html\n", s.session, s.accepted, s.trials, out_dirs[i]);

@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cmath>
 #include <nlohmann/json.hpp>
 
@@ -92,8 +93,39 @@ FitFile parse_fit_json(const std::string& text, const std::string& path) {
   nlohmann::json doc;
   try {
     doc = nlohmann::json::parse(text);
-  } catch (const nlohmann::json::parse_error& e) {
-    throw InputError(path, 0, 0, "", fmt::format("not valid JSON: {}", e.what()));
+  } catch (const nlohmann::json::exception& e) {
+    // Line, column and the key being read, from the byte offset (a number
+    // overflow is reported without one: found from the quoted number); the
+    // library's own wording without its "[json.exception...]" prefix.
+    std::size_t at = 0;
+    if (const auto* pe = dynamic_cast<const nlohmann::json::parse_error*>(&e)) {
+      at = std::min<std::size_t>(pe->byte > 0 ? pe->byte - 1 : 0, text.size());
+    } else {
+      const std::string w = e.what();
+      const auto q1 = w.find('\''), q2 = q1 == std::string::npos ? q1 : w.find('\'', q1 + 1);
+      if (q2 != std::string::npos) {
+        const auto found = text.find(w.substr(q1 + 1, q2 - q1 - 1));
+        if (found != std::string::npos) at = found;
+      }
+    }
+    int line = 1, column = 1;
+    for (std::size_t i = 0; i < at; ++i) text[i] == '\n' ? (++line, column = 1) : ++column;
+    std::string field;
+    const std::size_t colon = text.rfind(':', at);
+    if (colon != std::string::npos) {
+      const std::size_t close = text.rfind('"', colon), open = close == std::string::npos || close == 0
+                                                                  ? std::string::npos
+                                                                  : text.rfind('"', close - 1);
+      if (open != std::string::npos && close - open - 1 <= 64) field = text.substr(open + 1, close - open - 1);
+    }
+    std::string why = e.what();
+    if (const auto k = why.find("parse error"); k != std::string::npos) {
+      if (const auto c = why.find(": ", k); c != std::string::npos) why = why.substr(c + 2);
+    } else if (const auto b = why.find("] "); b != std::string::npos) {
+      why = why.substr(b + 2);
+    }
+    if (why.find("number overflow") != std::string::npos) why = "number too large for a double (" + why + ")";
+    throw InputError(path, line, column, field, fmt::format("not valid JSON: {}", why));
   }
   if (!doc.is_object()) throw InputError(path, 0, 0, "", "expected a JSON object");
   FitFile file;

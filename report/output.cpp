@@ -1,11 +1,14 @@
 #include "report/output.h"
 
+#include <fcntl.h>
 #include <fmt/format.h>
+#include <stdio.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <filesystem>
-#include <fstream>
 
+#include "core/atomic_file.h"
 #include "core/error.h"
 
 namespace fs = std::filesystem;
@@ -17,6 +20,8 @@ void OutputSet::add(const std::string& relative_path, std::string content) {
 }
 
 namespace {
+
+// True when `child` is `parent` or inside it, symbolic links resolved.
 bool is_within(const fs::path& child, const fs::path& parent) {
   const auto c = fs::weakly_canonical(child);
   const auto p = fs::weakly_canonical(parent);
@@ -27,76 +32,162 @@ bool is_within(const fs::path& child, const fs::path& parent) {
   }
   return true;
 }
+
+// A relative path of the OutputSet must stay below the output folder.
+void check_relative(const std::string& relative) {
+  const fs::path p(relative);
+  bool ok = !relative.empty() && p.is_relative();
+  for (const auto& part : p) ok = ok && part != ".." && part != ".";
+  if (!ok) throw Error(fmt::format("output file name '{}' would leave the output folder", relative));
+}
+
+// Swaps two names atomically where the kernel can (renameat2 with
+// RENAME_EXCHANGE); false when it cannot.
+bool exchange(const fs::path& a, const fs::path& b) {
+#ifdef RENAME_EXCHANGE
+  return ::renameat2(AT_FDCWD, a.c_str(), AT_FDCWD, b.c_str(), RENAME_EXCHANGE) == 0;
+#else
+  (void)a;
+  (void)b;
+  return false;
+#endif
+}
+
+// A folder written by dropfit before the marker existed: every entry at its
+// top is a name dropfit writes (or a temporary of one).
+bool written_by_older_dropfit(const fs::path& dir) {
+  static const char* const names[] = {"calibration.json", "dlt_coefficients.csv", "summary.csv", "trials",
+                                      "fit.json", "fits", "series", "diagnosis.json", "mat_model3.mjcf.xml",
+                                      "mat_model4.mjcf.xml", "report.html", "archive.csv", "archive.html"};
+  std::error_code ec;
+  bool any = false;
+  for (const auto& e : fs::directory_iterator(dir, ec)) {
+    const std::string n = e.path().filename().string();
+    const bool folder = n == "trials" || n == "fits" || n == "series";
+    // Folders where dropfit writes folders, regular files elsewhere; never a link.
+    if (e.is_symlink(ec) || (folder ? !e.is_directory(ec) : !e.is_regular_file(ec))) return false;
+    bool known = n.find(".tmp-") != std::string::npos;
+    for (const char* name : names) known = known || n == name;
+    if (!known) return false;
+    any = true;
+  }
+  return any && !ec;
+}
+
 }  // namespace
 
 void OutputSet::commit(const std::string& out_dir, const std::vector<std::string>& protected_dirs) const {
+  if (out_dir.empty()) throw Error("output folder: empty name");
   for (const auto& dir : protected_dirs) {
     if (is_within(out_dir, dir)) {
       throw Error(fmt::format("output folder '{}' is inside the session folder '{}'; a session is never written into",
                               out_dir, dir));
     }
+    if (is_within(dir, out_dir)) {
+      throw Error(fmt::format("output folder '{}' holds the session folder '{}'; the output folder is replaced whole, "
+                              "so it must not hold a session",
+                              out_dir, dir));
+    }
   }
-  // Two phases, so that a failure leaves nothing behind: every folder and
-  // temporary file first, then the renames into place.
-  std::vector<std::pair<fs::path, fs::path>> staged;  // temporary, final
-  auto discard = [&staged] {
+  for (const auto& [relative, content] : files_) check_relative(relative);
+
+  // The target: absent, empty, or a folder an earlier commit wrote (it holds
+  // the marker). Anything else is refused rather than replaced.
+  const fs::path target = fs::absolute(fs::path(out_dir)).lexically_normal();
+  const fs::path parent = target.parent_path();
+  const std::string name = target.filename().string();
+  if (name.empty() || name == "." || name == "..") {
+    throw Error(fmt::format("output folder '{}': name a folder, not '{}'", out_dir, name));
+  }
+  std::error_code ec;
+  const auto status = fs::symlink_status(target, ec);
+  const bool exists = fs::exists(status);
+  if (exists) {
+    if (fs::is_symlink(status)) {
+      throw Error(fmt::format("output folder '{}' is a symbolic link; name the folder itself", out_dir));
+    }
+    if (!fs::is_directory(status)) throw Error(fmt::format("output folder '{}' is a file, not a folder", out_dir));
+    const bool empty = fs::is_empty(target, ec);
+    if (!empty && !fs::exists(fs::symlink_status(target / kOutputMarker, ec)) && !written_by_older_dropfit(target)) {
+      throw Error(fmt::format("output folder '{}' already holds files dropfit did not write; name a new or empty "
+                              "folder (a folder dropfit wrote is replaced whole)",
+                              out_dir));
+    }
+  }
+  fs::create_directories(parent, ec);
+  if (ec || !fs::is_directory(parent)) {
+    throw Error(fmt::format("{}: cannot create folder: {}", parent.string(),
+                            ec ? ec.message() : "a file of that name is in the way"));
+  }
+
+  // Stage every file in a sibling folder, then swap it with the target: a
+  // failure before the swap leaves the target as it was, and after it the
+  // target holds exactly this set (no stale files of an earlier run).
+  static std::atomic<unsigned> counter{0};
+  const std::string tag = fmt::format("{}-{}", ::getpid(), counter++);
+  const fs::path staging = parent / fmt::format(".{}.staging-{}", name, tag);
+  const fs::path old = parent / fmt::format(".{}.old-{}", name, tag);
+  auto discard = [&] {
     std::error_code ignore;
-    for (const auto& [temp, target] : staged) fs::remove(temp, ignore);
+    fs::remove_all(staging, ignore);
   };
   try {
+    fs::create_directory(staging, ec);
+    if (ec) throw Error(fmt::format("{}: cannot create folder: {}", staging.string(), ec.message()));
     for (const auto& [relative, content] : files_) {
-      const fs::path target = fs::path(out_dir) / relative;
-      std::error_code ec;
-      fs::create_directories(target.parent_path(), ec);
-      if (ec || !fs::is_directory(target.parent_path())) {
-        throw Error(fmt::format("{}: cannot create folder: {}", target.parent_path().string(),
+      const fs::path file = staging / relative;
+      fs::create_directories(file.parent_path(), ec);
+      if (ec || !fs::is_directory(file.parent_path())) {
+        throw Error(fmt::format("{}: cannot create folder: {}", (target / relative).parent_path().string(),
                                 ec ? ec.message() : "a file of that name is in the way"));
       }
-      if (fs::is_directory(target)) throw Error(fmt::format("{}: a folder of that name is in the way", target.string()));
-      const fs::path temp = target.string() + fmt::format(".tmp-{}", ::getpid());
-      staged.emplace_back(temp, target);
-      std::ofstream out(temp, std::ios::binary | std::ios::trunc);
-      out.write(content.data(), static_cast<std::streamsize>(content.size()));
-      out.flush();
-      if (!out) throw Error(fmt::format("{}: cannot write", temp.string()));
+      if (fs::is_directory(file)) throw Error(fmt::format("{}: a folder of that name is in the way", (target / relative).string()));
+      write_file_synced(file.string(), content);
     }
+    write_file_synced((staging / kOutputMarker).string(),
+                      "Written by dropfit. The next run into this folder replaces it whole.\n");
+    for (auto it = fs::recursive_directory_iterator(staging); it != fs::recursive_directory_iterator(); ++it) {
+      if (it->is_directory()) sync_directory(it->path().string());
+    }
+    sync_directory(staging.string());
+  } catch (const fs::filesystem_error& e) {
+    discard();
+    throw Error(fmt::format("{}: cannot stage the results: {}", out_dir, e.code().message()));
   } catch (...) {
     discard();
     throw;
   }
-  for (const auto& [temp, target] : staged) {
-    std::error_code ec;
-    fs::rename(temp, target, ec);
+
+  if (!exists) {
+    fs::rename(staging, target, ec);
     if (ec) {
       discard();
-      throw Error(fmt::format("{}: cannot rename into place: {}", target.string(), ec.message()));
+      throw Error(fmt::format("{}: cannot move the results into place: {}", out_dir, ec.message()));
     }
+  } else if (exchange(staging, target)) {
+    std::error_code ignore;
+    fs::remove_all(staging, ignore);  // now the previous results; links inside are removed, never followed
+  } else {
+    fs::rename(target, old, ec);
+    if (ec) {
+      discard();
+      throw Error(fmt::format("{}: cannot move the previous results aside: {}", out_dir, ec.message()));
+    }
+    fs::rename(staging, target, ec);
+    if (ec) {
+      std::error_code ignore;
+      fs::rename(old, target, ignore);
+      discard();
+      throw Error(fmt::format("{}: cannot move the results into place: {}", out_dir, ec.message()));
+    }
+    std::error_code ignore;
+    fs::remove_all(old, ignore);
   }
+  sync_directory(parent.string());
 }
 
 void write_file_atomic(const std::string& path, const std::string& content) {
-  const fs::path target(path);
-  std::error_code ec;
-  if (target.has_parent_path()) {
-    fs::create_directories(target.parent_path(), ec);
-    if (ec) throw Error(fmt::format("{}: cannot create folder: {}", target.parent_path().string(), ec.message()));
-  }
-  const fs::path temp = target.string() + fmt::format(".tmp-{}", ::getpid());
-  {
-    std::ofstream out(temp, std::ios::binary | std::ios::trunc);
-    if (!out) throw Error(fmt::format("{}: cannot write", temp.string()));
-    out.write(content.data(), static_cast<std::streamsize>(content.size()));
-    out.flush();
-    if (!out) {
-      fs::remove(temp, ec);
-      throw Error(fmt::format("{}: write failed", temp.string()));
-    }
-  }
-  fs::rename(temp, target, ec);
-  if (ec) {
-    fs::remove(temp, ec);
-    throw Error(fmt::format("{}: cannot rename into place", target.string()));
-  }
+  dropfit::write_file_atomic(path, content);
 }
 
 }  // namespace dropfit::report

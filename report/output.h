@@ -1,14 +1,23 @@
 #pragma once
 // Results are written whole or not at all: a command builds every file of
-// its output in memory (an OutputSet), and only then commits them. Each file
-// goes to a temporary name in its final folder and is renamed into place, so
-// a reader never sees half a file and an error before commit() writes
-// nothing. A session folder is never written into.
+// its output in memory (an OutputSet), and only then commits them. commit()
+// writes every file (fsynced) into a staging folder beside the output
+// folder, then swaps it into place (renameat2 RENAME_EXCHANGE, or two
+// renames), so the output folder holds exactly this set: an error before
+// the swap leaves it as it was, and a re-run leaves no stale file of an
+// earlier one. A committed folder carries the marker file kOutputMarker; an
+// existing output folder without it is refused unless empty or holding only
+// names dropfit writes (results of a version before the marker): dropfit
+// never replaces a folder it did not write. A session folder is never written
+// into, whatever symbolic links the output folder held: the old folder is
+// removed (its links with it, never followed), never written into.
 #include <map>
 #include <vector>
 #include <string>
 
 namespace dropfit::report {
+
+inline constexpr const char* kOutputMarker = ".dropfit-output";
 
 class OutputSet {
  public:
@@ -17,15 +26,17 @@ class OutputSet {
   bool empty() const { return files_.empty(); }
   const std::map<std::string, std::string>& files() const { return files_; }
 
-  // Writes every file under out_dir. Throws dropfit::Error when out_dir is
-  // inside (or is) one of the protected folders, or a file cannot be written.
+  // Replaces out_dir with exactly these files. Throws dropfit::Error (and
+  // leaves out_dir as it was) when out_dir is inside, is, or holds one of
+  // the protected folders, is a symbolic link or a file, holds files dropfit
+  // did not write, or a file cannot be written.
   void commit(const std::string& out_dir, const std::vector<std::string>& protected_dirs = {}) const;
 
  private:
   std::map<std::string, std::string> files_;
 };
 
-// Writes one file atomically (temporary name + rename).
+// Writes one file atomically (dropfit::write_file_atomic, core/atomic_file.h).
 void write_file_atomic(const std::string& path, const std::string& content);
 
 }  // namespace dropfit::report

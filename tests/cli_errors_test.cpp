@@ -234,5 +234,18 @@ TEST_F(CliErrors, OutputInsideTheSessionIsRefused) {
   EXPECT_FALSE(fs::exists(session() / "results"));
 }
 
+// An option out of range names the option and the value, in a few words
+// (not CLI11's 309-digit upper bound).
+TEST_F(CliErrors, OptionOutOfRangeNamesOptionAndValue) {
+  for (const std::string value : {"-1", "abc"}) {
+    const CliRun run = run_dropfit({"run", session().string(), "--out", out().string(), "--jobs", value}, dir_.path());
+    expect_one_line_error(run);
+    EXPECT_TRUE(contains(run.err, "--jobs")) << run.describe();
+    EXPECT_TRUE(contains(run.err, "'" + value + "' is not a number >= 0")) << run.describe();
+    EXPECT_LT(run.err.size(), 200u) << run.describe();
+    EXPECT_FALSE(fs::exists(out()));
+  }
+}
+
 }  // namespace
 }  // namespace dropfit::clitest

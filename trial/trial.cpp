@@ -4,8 +4,10 @@
 #include <fmt/format.h>
 
 #include <Eigen/Dense>
+#include <boost/math/distributions/students_t.hpp>
 #include <Eigen/SVD>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <optional>
 #include <vector>
@@ -17,51 +19,6 @@ namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr double kPi = 3.14159265358979323846;
-
-// Continued fraction of the regularised incomplete beta function (modified
-// Lentz's method; Press et al., Numerical Recipes, 3rd ed., sec. 6.4).
-double beta_continued_fraction(double a, double b, double x) {
-  constexpr double tiny = 1e-300;
-  const double qab = a + b, qap = a + 1.0, qam = a - 1.0;
-  double c = 1.0, d = 1.0 - qab * x / qap;
-  if (std::abs(d) < tiny) d = tiny;
-  d = 1.0 / d;
-  double h = d;
-  for (int m = 1; m <= 300; ++m) {
-    const int m2 = 2 * m;
-    double aa = m * (b - m) * x / ((qam + m2) * (a + m2));
-    d = 1.0 + aa * d;
-    if (std::abs(d) < tiny) d = tiny;
-    c = 1.0 + aa / c;
-    if (std::abs(c) < tiny) c = tiny;
-    d = 1.0 / d;
-    h *= d * c;
-    aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2));
-    d = 1.0 + aa * d;
-    if (std::abs(d) < tiny) d = tiny;
-    c = 1.0 + aa / c;
-    if (std::abs(c) < tiny) c = tiny;
-    d = 1.0 / d;
-    const double del = d * c;
-    h *= del;
-    if (std::abs(del - 1.0) < 1e-15) break;
-  }
-  return h;
-}
-
-double incomplete_beta(double a, double b, double x) {
-  if (x <= 0.0) return 0.0;
-  if (x >= 1.0) return 1.0;
-  const double front =
-      std::exp(std::lgamma(a + b) - std::lgamma(a) - std::lgamma(b) + a * std::log(x) + b * std::log1p(-x));
-  if (x < (a + 1.0) / (a + b + 2.0)) return front * beta_continued_fraction(a, b, x) / a;
-  return 1.0 - front * beta_continued_fraction(b, a, 1.0 - x) / b;
-}
-
-double student_t_cdf(double t, double dof) {
-  const double tail = 0.5 * incomplete_beta(0.5 * dof, 0.5, dof / (dof + t * t));
-  return t >= 0.0 ? 1.0 - tail : tail;
-}
 
 // A unit vector whose angle from vertical is the base's tilt (trial.h):
 // the plane normal (three or more points) or the normal of the base line
@@ -175,6 +132,43 @@ std::optional<Fit2> line_fit(const std::vector<double>& tau, const std::vector<d
     fit.rss += r * r;
   }
   return fit;
+}
+
+// A single-sample force spike during contact (trial.h), as a reason; empty
+// when none. Samples [first, last] are the contact.
+std::string force_spike(const Eigen::VectorXd& t, const Eigen::VectorXd& fz, Eigen::Index first, Eigen::Index last,
+                        double max_fraction) {
+  const Eigen::Index n = fz.size();
+  first = std::max<Eigen::Index>(first, 0);
+  last = std::min<Eigen::Index>(last, n - 1);
+  for (Eigen::Index k = first; k <= last; ++k) {
+    if (!std::isfinite(fz[k])) {
+      return fmt::format("force: sample {} (t = {:.1f} ms) is not a finite number", k, 1e3 * t[k]);
+    }
+  }
+  if (last - first < 4) return {};
+  // The contact's peak after a 5-sample median filter: one spike cannot raise it.
+  double peak = 0.0;
+  std::array<double, 5> w{};
+  for (Eigen::Index k = first + 2; k <= last - 2; ++k) {
+    for (int j = 0; j < 5; ++j) w[j] = fz[k - 2 + j];
+    std::nth_element(w.begin(), w.begin() + 2, w.end());
+    peak = std::max(peak, std::abs(w[2]));
+  }
+  const double limit = max_fraction * peak;
+  Eigen::Index worst = -1;
+  double worst_dev = 0.0;
+  for (Eigen::Index k = std::max<Eigen::Index>(first, 1); k <= std::min(last, n - 2); ++k) {
+    const double a = fz[k] - fz[k - 1], b = fz[k] - fz[k + 1];
+    if ((a > 0.0) != (b > 0.0)) continue;  // not standing away from both
+    const double dev = std::min(std::abs(a), std::abs(b));
+    if (dev > limit && dev > worst_dev) worst = k, worst_dev = dev;
+  }
+  if (worst < 0) return {};
+  return fmt::format(
+      "force: single-sample spike at sample {} (t = {:.1f} ms): {:.4g} N against {:.4g} N and {:.4g} N beside it "
+      "(a mat's force cannot jump by more than {:.0f} % of its {:.0f} N peak within one sample)",
+      worst, 1e3 * t[worst], fz[worst], fz[worst - 1], fz[worst + 1], 100.0 * max_fraction, peak);
 }
 
 TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string& force_error,
@@ -506,12 +500,41 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
       }
     }
 
+    // Force spikes during contact (trial.h): the impulse checks below are
+    // meaningless with one, so they wait for a clean record.
+    const std::string spike = force_spike(t, fz, force->contact_index, force->end_index, o.max_spike_fraction);
+    if (!spike.empty()) reasons.push_back(spike);
+
     // Impulse check to maximum deformation.
     if (std::isfinite(res.max_deformation_time_s) && std::isfinite(res.impact_velocity_m_s) &&
         res.max_deformation_time_s > force->contact_time_s) {
       const double impulse = integrate(t, fz, force->contact_time_s, res.max_deformation_time_s) -
                              o.impactor_mass_kg * g * (res.max_deformation_time_s - force->contact_time_s);
       res.impulse_ratio = impulse / (o.impactor_mass_kg * res.impact_velocity_m_s);
+      res.velocity_from_impulse_m_s = impulse / o.impactor_mass_kg;
+    }
+    // Impulse over the whole contact: restitution.
+    if (force->end_found && std::isfinite(res.impact_velocity_m_s) && force->end_time_s > force->contact_time_s) {
+      const double impulse = integrate(t, fz, force->contact_time_s, force->end_time_s) -
+                             o.impactor_mass_kg * g * (force->end_time_s - force->contact_time_s);
+      res.restitution = impulse / (o.impactor_mass_kg * res.impact_velocity_m_s) - 1.0;
+    }
+    if (spike.empty()) {
+      const double tol = o.impulse_tolerance + std::max(0.0, o.mat_mass_kg) / o.impactor_mass_kg;
+      if (std::isfinite(res.impact_velocity_m_s) && std::isfinite(res.max_deformation_time_s) &&
+          !(std::abs(res.impulse_ratio - 1.0) <= tol)) {
+        reasons.push_back(fmt::format(
+            "impact velocity {:.3f} m/s from video against {:.3g} m/s from the force impulse to maximum deformation "
+            "(ratio {:.3g}, physically within {:.2f}-{:.2f}): check [video].frame_rate_hz, [impactor].mass_kg and the "
+            "force scale",
+            res.impact_velocity_m_s, res.velocity_from_impulse_m_s, res.impulse_ratio, 1.0 - tol, 1.0 + tol));
+      }
+      if (std::isfinite(res.impact_velocity_m_s) && force->end_found && !(res.restitution >= -tol && res.restitution <= 1.0 + tol)) {
+        reasons.push_back(fmt::format(
+            "impulse over the contact is {:.3g} times the impactor's momentum at contact; a rebound bounded by the "
+            "impact speed allows 1-2 (restitution 0-1, tolerance {:.2f})",
+            res.restitution + 1.0, tol));
+      }
     }
   }
 
@@ -585,15 +608,7 @@ FreeFallFit fit_free_fall(const Eigen::VectorXd& t_s, const Eigen::VectorXd& z_m
 
 double student_t_quantile(double p, double dof) {
   if (!(p > 0.0 && p < 1.0) || !(dof > 0.0)) return kNaN;
-  if (p == 0.5) return 0.0;
-  if (p < 0.5) return -student_t_quantile(1.0 - p, dof);
-  double lo = 0.0, hi = 1.0;
-  while (student_t_cdf(hi, dof) < p && hi < 1e12) hi *= 2.0;
-  for (int it = 0; it < 200 && hi - lo > 1e-13 * hi; ++it) {
-    const double mid = 0.5 * (lo + hi);
-    (student_t_cdf(mid, dof) < p ? lo : hi) = mid;
-  }
-  return 0.5 * (lo + hi);
+  return boost::math::quantile(boost::math::students_t(dof), p);
 }
 
 double base_tilt_deg(const std::vector<Eigen::Vector3d>& base_points_m) {
@@ -621,6 +636,64 @@ TrialResult analyse_without_force(const reconstruction::Trajectories& markers, c
                                   const std::string& force_error) {
   return analyse_impl(nullptr, force_error.empty() ? std::string("force record: missing") : force_error, markers,
                       options);
+}
+
+CalibrationQuality calibration_quality(const calibration::CalibrationResult& calibration) {
+  CalibrationQuality q;
+  std::string worst_camera;
+  for (const auto& camera : calibration.cameras) {
+    if (!(camera.fit_rms_px <= q.fit_rms_px)) {
+      q.fit_rms_px = camera.fit_rms_px;
+      worst_camera = camera.camera.name;
+    }
+  }
+  if (calibration.check_rms_m.allFinite()) q.check_rms_m = calibration.check_rms_m.norm();
+  std::vector<std::string> problems;
+  if (!(q.fit_rms_px <= kMaxCalibrationFitRmsPx) && !calibration.cameras.empty()) {
+    problems.push_back(fmt::format("camera {} fits its calibration points to {:.3g} px RMS (limit {:.0f} px)",
+                                   worst_camera, q.fit_rms_px, kMaxCalibrationFitRmsPx));
+  }
+  if (std::isfinite(q.check_rms_m) && q.check_rms_m > kMaxCalibrationCheckRmsM) {
+    problems.push_back(fmt::format("check markers reconstructed to {:.3g} mm RMS (limit {:.0f} mm)", 1e3 * q.check_rms_m,
+                                   1e3 * kMaxCalibrationCheckRmsM));
+  }
+  if (!problems.empty()) {
+    q.problem = "calibration failed its own check: " + join(problems, "; ") +
+                " (a mislabelled or mistyped calibration point?)";
+  }
+  return q;
+}
+
+void apply_calibration_gates(TrialResult& result, const reconstruction::Trajectories& markers,
+                             const TrialOptions& options, const CalibrationQuality& quality) {
+  std::vector<double> r;
+  for (int p : options.base_markers) {
+    if (p < 0 || p >= markers.n_points()) continue;
+    for (int i = 0; i < markers.n_frames(); ++i) {
+      const double v = markers.residual_px(i, p);
+      if (std::isfinite(v)) r.push_back(v);
+    }
+  }
+  std::vector<std::string> reasons;
+  if (!quality.problem.empty()) reasons.push_back(quality.problem);
+  if (!r.empty()) {
+    std::nth_element(r.begin(), r.begin() + static_cast<std::ptrdiff_t>(r.size() / 2), r.end());
+    result.reprojection_residual_px = r[r.size() / 2];
+    const double limit =
+        std::max(kMinResidualLimitPx, kResidualFactor * (std::isfinite(quality.fit_rms_px) ? quality.fit_rms_px : 0.0));
+    if (!(result.reprojection_residual_px <= limit)) {
+      reasons.push_back(fmt::format(
+          "markers reproject {:.3g} px from where they were digitised (median over the base markers; the calibration "
+          "fits its points to {:.2g} px, limit {:.2g} px): check the order of [video].cameras and of the tracked points",
+          result.reprojection_residual_px, quality.fit_rms_px, limit));
+    }
+  }
+  if (reasons.empty()) return;
+  for (auto& reason : reasons) {
+    if (!result.reject_reason.empty()) result.reject_reason += "; ";
+    result.reject_reason += reason;
+  }
+  result.accepted = false;
 }
 
 std::string TrialResult::report() const {

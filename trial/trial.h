@@ -70,8 +70,35 @@
 // reported): a bad force record (forceplate's Error text forwarded), the
 // face never seen reaching the mat, too few free-fall frames, base markers
 // missing around contact (named), tilt beyond max_tilt_deg, clocks
-// disagreeing by more than max_video_offset_s. Bad options (an index out of
-// range, no base markers) throw dropfit::Error.
+// disagreeing by more than max_video_offset_s, and the plausibility gates
+// below. Bad options (an index out of range, no base markers) throw
+// dropfit::Error.
+//
+// Plausibility gates (physics, not tuning; each names what it saw):
+// - Force spike: a non-finite Fz sample during contact, or one sample that
+//   stands away from both neighbours (same sign) by more than
+//   max_spike_fraction of the contact's median-filtered peak. Through a
+//   compliant mat the plate force rises over milliseconds; a smooth curve
+//   sampled at 1 kHz or faster cannot leave and return to its neighbours by
+//   half its peak within one sample (in the demo and the six validation
+//   sessions, stiffening top layers included, no sample stands more than
+//   1 % of the peak away from both neighbours).
+// - Impact velocity, video against force: the impulse above the impactor's
+//   weight from contact to maximum deformation divided by the mass is the
+//   impact speed the force implies (impulse_ratio = that over the video's).
+//   The plate also carries the mat layers' momentum at that instant (at
+//   most m_mat v_in) and the force scale is known to a few per cent, so the
+//   ratio must lie within 1 +- (impulse_tolerance + mat_mass_kg /
+//   impactor_mass_kg). A wrong frame rate, mass or force scale leaves it.
+// - Impulse against momentum over the whole contact (when the force returns
+//   to zero): J = M (v_in + v_out) with 0 <= v_out <= v_in, so the
+//   restitution J / (M v_in) - 1 must lie in [0, 1], with the same
+//   tolerance. A negative impulse or one beyond twice the momentum is
+//   impossible.
+// - Reprojection and calibration: apply_calibration_gates() (below), given
+//   the calibration's own quality, rejects a trial whose markers' median
+//   reprojection residual is far above what the calibration achieved, and
+//   every trial of a calibration that failed its own check.
 #include <Eigen/Core>
 #include <limits>
 #include <string>
@@ -104,6 +131,9 @@ struct TrialOptions {
   double deformation_fit_half_window_s = 0.005;
   int tilt_smoothing_frames = 5;
   double series_lead_s = 0.010;
+  double mat_mass_kg = 0.0;               // all layers; bounds the mat's share of the plate impulse
+  double impulse_tolerance = 0.15;        // force scale (a few %) and velocity CI (~1-3 %), generously
+  double max_spike_fraction = 0.5;        // of the median-filtered contact peak
 };
 
 // The free-fall fit of the face height (video clock).
@@ -169,6 +199,9 @@ struct TrialResult {
   int freefall_frames = 0;
   double impulse_ratio = std::numeric_limits<double>::quiet_NaN();
   double force_noise_n = std::numeric_limits<double>::quiet_NaN();  // Fz SD in the quiet pre-trigger part
+  double velocity_from_impulse_m_s = std::numeric_limits<double>::quiet_NaN();  // impulse to max deformation / M
+  double restitution = std::numeric_limits<double>::quiet_NaN();  // whole-contact impulse / (M v_in) - 1
+  double reprojection_residual_px = std::numeric_limits<double>::quiet_NaN();  // median, base markers
   Series series;
 
   std::string report() const;
@@ -189,5 +222,35 @@ TrialResult analyse(const forceplate::Resultants& raw_force, const forceplate::P
 // measurements (impact velocity, deformation, tilt) still reported.
 TrialResult analyse_without_force(const reconstruction::Trajectories& markers, const TrialOptions& options,
                                   const std::string& force_error);
+
+// What the calibration achieved on its own points, and whether it failed
+// its own check. `problem` is empty for a usable calibration; otherwise it
+// says why every trial reconstructed with it is rejected:
+// - a camera's fit RMS above max_fit_rms_px (10 px: 30-50 times the 0.2-0.3
+//   px digitising noise and above what an uncorrected lens gives, a few px
+//   at the image corners; only a mislabelled or sign-flipped point gets
+//   there), or
+// - the check markers' 3-D RMS error above max_check_rms_m (10 mm: ten times
+//   the 1 mm a lab calibration is built for; good ones read 0.5-1.6 mm).
+struct CalibrationQuality {
+  double fit_rms_px = std::numeric_limits<double>::quiet_NaN();    // largest over cameras
+  double check_rms_m = std::numeric_limits<double>::quiet_NaN();   // 3-D (norm of the per-axis RMS)
+  std::string problem;
+};
+constexpr double kMaxCalibrationFitRmsPx = 10.0;
+constexpr double kMaxCalibrationCheckRmsM = 0.010;
+CalibrationQuality calibration_quality(const calibration::CalibrationResult& calibration);
+
+// Rejects `result` (adding the reason) when the calibration failed its own
+// check, or when the median reprojection residual of the base markers over
+// the trial exceeds max(kMinResidualLimitPx, kResidualFactor x the
+// calibration's fit RMS): a correctly labelled track reprojects to within
+// the digitising noise (0.1-0.5 px here); a camera order swapped in the
+// manifest or points crossed between cameras give tens of pixels. Sets
+// result.reprojection_residual_px.
+constexpr double kMinResidualLimitPx = 5.0;
+constexpr double kResidualFactor = 10.0;
+void apply_calibration_gates(TrialResult& result, const reconstruction::Trajectories& markers,
+                             const TrialOptions& options, const CalibrationQuality& quality);
 
 }  // namespace dropfit::trial

@@ -1,0 +1,228 @@
+// dropfit gather OUT_DIR... --out DIR
+// Gathers many sessions' results (the folders `dropfit run` wrote, or
+// folders holding several of them) into one archive table: archive.csv (one
+// row per session and model: trials, accepted, the model's parameters and
+// how well it reproduces the force) and archive.html (the same as a table,
+// each session linked to its report). The result folders are only read.
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <set>
+#include <sstream>
+
+#include "cli/command.h"
+#include "core/error.h"
+#include "report/output.h"
+
+namespace dropfit::cli {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct ModelRow {
+  std::string model;
+  std::map<std::string, double> parameters;
+  double mean_rms_force_pct = std::numeric_limits<double>::quiet_NaN();
+  double max_rms_force_pct = std::numeric_limits<double>::quiet_NaN();
+  int warnings = 0;
+};
+
+struct SessionRow {
+  fs::path dir;
+  int trials = 0, accepted = 0;
+  std::vector<ModelRow> models;
+};
+
+std::string read_file(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw InputError(path.string(), 0, 0, "", "cannot read");
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+// summary.csv: trials and accepted ("yes" in the second column).
+void read_summary(const fs::path& path, SessionRow& row) {
+  std::istringstream in(read_file(path));
+  std::string line;
+  int n = 0;
+  if (!std::getline(in, line) || line.rfind("trial,accepted,", 0) != 0) {
+    throw InputError(path.string(), 1, 1, "", "not a dropfit summary.csv (header 'trial,accepted,...')");
+  }
+  while (std::getline(in, line)) {
+    ++n;
+    if (line.empty()) continue;
+    const auto a = line.find(','), b = a == std::string::npos ? a : line.find(',', a + 1);
+    if (b == std::string::npos) throw InputError(path.string(), n + 1, 0, "accepted", "missing");
+    const std::string accepted = line.substr(a + 1, b - a - 1);
+    ++row.trials;
+    row.accepted += accepted == "yes";
+  }
+}
+
+ModelRow read_fit(const fs::path& path) {
+  nlohmann::json doc;
+  try {
+    doc = nlohmann::json::parse(read_file(path));
+  } catch (const nlohmann::json::exception&) {
+    throw InputError(path.string(), 0, 0, "", "not valid JSON");
+  }
+  ModelRow m;
+  auto field = [&](const char* name) -> const nlohmann::json& {
+    if (!doc.is_object() || !doc.contains(name)) throw InputError(path.string(), 0, 0, name, "missing");
+    return doc[name];
+  };
+  if (!field("model").is_string()) throw InputError(path.string(), 0, 0, "model", "not a string");
+  m.model = doc["model"].get<std::string>();
+  if (!field("parameters").is_object()) throw InputError(path.string(), 0, 0, "parameters", "not an object");
+  for (const auto& [k, v] : doc["parameters"].items()) {
+    if (!v.is_number()) throw InputError(path.string(), 0, 0, "parameters." + k, "not a number");
+    m.parameters[k] = v.get<double>();
+  }
+  double sum = 0.0, worst = 0.0;
+  int n = 0;
+  if (doc.contains("trials") && doc["trials"].is_array()) {
+    for (const auto& t : doc["trials"]) {
+      if (t.is_object() && t.contains("rms_force_pct_peak") && t["rms_force_pct_peak"].is_number()) {
+        const double r = t["rms_force_pct_peak"].get<double>();
+        sum += r;
+        worst = std::max(worst, r);
+        ++n;
+      }
+    }
+  }
+  if (n > 0) m.mean_rms_force_pct = sum / n, m.max_rms_force_pct = worst;
+  if (doc.contains("warnings") && doc["warnings"].is_array()) m.warnings = static_cast<int>(doc["warnings"].size());
+  return m;
+}
+
+SessionRow read_session_results(const fs::path& dir) {
+  SessionRow row;
+  row.dir = dir;
+  read_summary(dir / "summary.csv", row);
+  std::vector<fs::path> fits;
+  if (fs::is_directory(dir / "fits")) {
+    for (const auto& e : fs::directory_iterator(dir / "fits")) {
+      if (fs::is_regular_file(e.path() / "fit.json")) fits.push_back(e.path() / "fit.json");
+    }
+  }
+  std::sort(fits.begin(), fits.end());
+  for (const auto& f : fits) row.models.push_back(read_fit(f));
+  return row;
+}
+
+// An argument: a session's results, or a folder of them (one level down).
+std::vector<fs::path> result_folders(const std::string& arg) {
+  const fs::path dir(arg);
+  if (!fs::is_directory(dir)) throw Error(fmt::format("{}: not a folder", arg));
+  if (fs::exists(dir / "summary.csv")) return {dir};
+  std::vector<fs::path> found;
+  for (const auto& e : fs::directory_iterator(dir)) {
+    if (e.is_directory() && fs::exists(e.path() / "summary.csv")) found.push_back(e.path());
+  }
+  std::sort(found.begin(), found.end());
+  if (found.empty()) {
+    throw Error(fmt::format("{}: no dropfit results here (no summary.csv in it or its sub-folders)", arg));
+  }
+  return found;
+}
+
+std::string csv_field(const std::string& s) {
+  if (s.find_first_of(",\"\n") == std::string::npos) return s;
+  std::string out = "\"";
+  for (char c : s) out += c == '"' ? std::string("\"\"") : std::string(1, c);
+  return out + "\"";
+}
+
+std::string number(double v) { return std::isfinite(v) ? fmt::format("{:.6g}", v) : std::string(); }
+
+std::string html_escape(const std::string& s) {
+  std::string out;
+  for (char c : s) {
+    switch (c) {
+      case '<': out += "&lt;"; break;
+      case '>': out += "&gt;"; break;
+      case '&': out += "&amp;"; break;
+      case '"': out += "&quot;"; break;
+      default: out += c;
+    }
+  }
+  return out;
+}
+
+void add_gather(CLI::App& app, CommandContext& ctx) {
+  struct Args {
+    std::vector<std::string> dirs;
+    std::string out;
+  };
+  auto args = std::make_shared<Args>();
+  auto* sub = app.add_subcommand("gather", "many sessions' results into one archive table (archive.csv, archive.html)");
+  sub->add_option("results", args->dirs, "result folders of `dropfit run` (or folders holding them)")->required();
+  sub->add_option("--out", args->out, "archive folder")->required();
+  sub->callback([args, &ctx] {
+    std::vector<SessionRow> rows;
+    std::set<std::string> parameter_names;
+    for (const auto& arg : args->dirs) {
+      for (const auto& dir : result_folders(arg)) {
+        rows.push_back(read_session_results(dir));
+        for (const auto& m : rows.back().models) {
+          for (const auto& [k, v] : m.parameters) parameter_names.insert(k);
+        }
+      }
+    }
+    const fs::path out_abs = fs::absolute(args->out);
+    std::string csv = "session,results,trials,accepted,model";
+    for (const auto& p : parameter_names) csv += "," + p;
+    csv += ",mean_rms_force_pct_peak,max_rms_force_pct_peak,warnings\n";
+    std::string table = "<tr><th>session</th><th>trials</th><th>accepted</th><th>model</th>";
+    for (const auto& p : parameter_names) table += "<th>" + html_escape(p) + "</th>";
+    table += "<th>mean RMS force error (% of peak)</th><th>warnings</th></tr>\n";
+    int with_fits = 0;
+    for (const auto& r : rows) {
+      const std::string name = r.dir.filename().string();
+      const std::string abs = fs::absolute(r.dir).lexically_normal().string();
+      const std::string link = fs::relative(fs::absolute(r.dir) / "report.html", out_abs).string();
+      with_fits += !r.models.empty();
+      std::vector<ModelRow> models = r.models;
+      if (models.empty()) models.push_back({});  // a row for a session without fits
+      for (const auto& m : models) {
+        csv += fmt::format("{},{},{},{},{}", csv_field(name), csv_field(abs), r.trials, r.accepted, csv_field(m.model));
+        table += fmt::format("<tr><td><a href=\"{}\">{}</a></td><td>{}</td><td>{}</td><td>{}</td>", html_escape(link),
+                             html_escape(name), r.trials, r.accepted, html_escape(m.model.empty() ? "no fit" : m.model));
+        for (const auto& p : parameter_names) {
+          const auto it = m.parameters.find(p);
+          const std::string v = it == m.parameters.end() ? std::string() : number(it->second);
+          csv += "," + v;
+          table += "<td>" + v + "</td>";
+        }
+        csv += fmt::format(",{},{},{}\n", number(m.mean_rms_force_pct), number(m.max_rms_force_pct), m.warnings);
+        table += fmt::format("<td>{}</td><td>{}</td></tr>\n", number(m.mean_rms_force_pct), m.warnings);
+      }
+    }
+    std::string html =
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>dropfit archive</title>\n"
+        "<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}"
+        "td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}td:first-child,th{text-align:left}</style>"
+        "</head><body>\n";
+    html += fmt::format("<h1>dropfit archive</h1>\n<p>{} session(s), {} with fitted models. Each session links to its "
+                        "report; archive.csv holds the same table.</p>\n<table>\n",
+                        rows.size(), with_fits);
+    html += table + "</table>\n</body></html>\n";
+    report::OutputSet out;
+    out.add("archive.csv", csv);
+    out.add("archive.html", html);
+    std::vector<std::string> inputs;
+    for (const auto& r : rows) inputs.push_back(r.dir.string());
+    out.commit(args->out, inputs);
+    fmt::print("{} session(s) gathered into {}/archive.csv and archive.html\n", rows.size(), args->out);
+    ctx.exit_code = 0;
+  });
+}
+
+}  // namespace
+DROPFIT_COMMAND(90, add_gather);
+}  // namespace dropfit::cli

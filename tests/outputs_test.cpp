@@ -1,0 +1,131 @@
+// Safe outputs: each session's results in a folder of its own, an output
+// folder replaced whole (no stale files), nothing ever written into a
+// session folder whatever links the output folder holds, and the atomic file
+// writer of core/.
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <string>
+
+#include "core/atomic_file.h"
+#include "core/error.h"
+#include "report/output.h"
+#include "support/cli_harness.h"
+
+namespace dropfit::clitest {
+namespace {
+
+const fs::path kDemo = fs::path(DROPFIT_SOURCE_DIR) / "samples" / "demo-session";
+
+TEST(AtomicFile, WritesReplacesAndLeavesNoTemporary) {
+  TempDir dir;
+  const fs::path file = dir / "a" / "b.txt";
+  write_file_atomic(file.string(), "first\n");
+  EXPECT_EQ(read_text(file), "first\n");
+  write_file_atomic(file.string(), "second\n");
+  EXPECT_EQ(read_text(file), "second\n");
+  int entries = 0;
+  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir / "a")) ++entries;
+  EXPECT_EQ(entries, 1);  // no temporary left beside it
+  fs::create_directories(dir / "folder");
+  EXPECT_THROW(write_file_atomic((dir / "folder").string(), "x"), Error);
+  EXPECT_THROW(write_file_atomic((dir / "a" / "b.txt" / "c").string(), "x"), Error);  // a file in the way
+}
+
+TEST(OutputSetCommit, ReplacesAnEarlierCommitWholeAndRefusesForeignFolders) {
+  TempDir dir;
+  const fs::path out = dir / "out";
+  report::OutputSet first;
+  first.add("a.txt", "1");
+  first.add("trials/t1/x.csv", "1");
+  first.commit(out.string());
+  report::OutputSet second;
+  second.add("a.txt", "2");
+  second.commit(out.string());
+  EXPECT_EQ(read_text(out / "a.txt"), "2");
+  EXPECT_FALSE(fs::exists(out / "trials"));  // stale folder of the first commit gone
+  EXPECT_TRUE(fs::exists(out / report::kOutputMarker));
+  // Nothing but the output folder beside it (no staging or old folder left).
+  {
+    int entries = 0;
+    for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path())) ++entries;
+    EXPECT_EQ(entries, 1);
+  }
+
+  // A folder holding someone else's files is refused, untouched.
+  const fs::path foreign = dir / "foreign";
+  fs::create_directories(foreign);
+  write_text(foreign / "thesis.tex", "keep me");
+  EXPECT_THROW(second.commit(foreign.string()), Error);
+  EXPECT_EQ(read_text(foreign / "thesis.tex"), "keep me");
+  // Results of a dropfit before the marker (only names dropfit writes) are replaced.
+  const fs::path legacy = dir / "legacy";
+  fs::create_directories(legacy / "trials" / "t1");
+  write_text(legacy / "report.html", "old");
+  write_text(legacy / "calibration.json", "{}");
+  second.commit(legacy.string());
+  EXPECT_EQ(read_text(legacy / "a.txt"), "2");
+  EXPECT_FALSE(fs::exists(legacy / "report.html"));
+  // A name that would leave the output folder is refused.
+  report::OutputSet escape;
+  escape.add("../escaped.txt", "x");
+  EXPECT_THROW(escape.commit((dir / "out2").string()), Error);
+  EXPECT_FALSE(fs::exists(dir / "escaped.txt"));
+}
+
+class Outputs : public ::testing::Test {
+ protected:
+  void SetUp() override { fs::copy(kDemo, session(), fs::copy_options::recursive); }
+  fs::path session() const { return dir_ / "session"; }
+  TempDir dir_;
+};
+
+// Two sessions with the same folder name: two result folders.
+TEST_F(Outputs, SessionsWithTheSameNameGetAFolderEach) {
+  fs::create_directories(dir_ / "a");
+  fs::create_directories(dir_ / "b");
+  fs::copy(kDemo, dir_ / "a" / "demo", fs::copy_options::recursive);
+  fs::copy(kDemo, dir_ / "b" / "demo", fs::copy_options::recursive);
+  const CliRun r = run_dropfit({"run", (dir_ / "a" / "demo").string(), (dir_ / "b" / "demo").string() + "/", "--out",
+                                (dir_ / "out").string(), "--no-diagnose"},
+                               dir_.path());
+  ASSERT_EQ(r.exit_code, 0) << r.describe();
+  EXPECT_TRUE(fs::exists(dir_ / "out" / "demo" / "report.html"));
+  EXPECT_TRUE(fs::exists(dir_ / "out" / "demo-2" / "report.html"));
+  EXPECT_NE(r.out.find("2 session(s)"), std::string::npos) << r.describe();
+}
+
+// A re-run replaces the results whole; a link planted in the output folder
+// that points into the session is removed, never followed.
+TEST_F(Outputs, RerunReplacesWholeAndNeverFollowsALinkIntoTheSession) {
+  const fs::path out = dir_ / "out";
+  CliRun r = run_dropfit({"process", session().string(), "--out", out.string()}, dir_.path());
+  ASSERT_EQ(r.exit_code, 0) << r.describe();
+  write_text(out / "stale.txt", "from an earlier run");
+  fs::remove_all(out / "trials");
+  fs::create_directory_symlink(session() / "trials", out / "trials");
+  const auto before = listing(session());
+  r = run_dropfit({"process", session().string(), "--out", out.string()}, dir_.path());
+  ASSERT_EQ(r.exit_code, 0) << r.describe();
+  EXPECT_EQ(listing(session()), before) << "the session folder changed";
+  EXPECT_FALSE(fs::exists(out / "stale.txt"));
+  EXPECT_FALSE(fs::is_symlink(out / "trials"));
+  EXPECT_TRUE(fs::exists(out / "trials" / "trial1" / "trial.json"));
+  EXPECT_FALSE(fs::exists(session() / "trials" / "trial1" / "trial.json"));
+}
+
+// --out itself a link into the session, or a folder holding the session:
+// refused with one error line, nothing written.
+TEST_F(Outputs, OutputFolderResolvingIntoOrAroundTheSessionIsRefused) {
+  fs::create_directory_symlink(session() / "trials", dir_ / "link");
+  const auto before = listing(session());
+  for (const fs::path& out : {dir_ / "link", dir_ / "link" / "x", dir_.path()}) {
+    const CliRun r = run_dropfit({"calibrate", session().string(), "--out", out.string()}, dir_.path());
+    expect_one_line_error(r);
+    EXPECT_EQ(listing(session()), before) << r.describe();
+  }
+}
+
+}  // namespace
+}  // namespace dropfit::clitest

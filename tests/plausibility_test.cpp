@@ -1,0 +1,167 @@
+// Plausibility gates, end to end: copies of samples/demo-session spoiled the
+// way a lab could spoil them (cameras swapped in the manifest, the wrong frame
+// rate or mass, one wild force sample, a mistyped calibration pixel). Each
+// must give rejected trials with a reason that names what was seen, and
+// `run` must exit non-zero when no trial is left; never exit 0 with
+// nonsense. The untouched copy stays all accepted (the gates are not
+// triggered by clean data).
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <filesystem>
+#include <regex>
+#include <string>
+
+#include "support/cli_harness.h"
+
+namespace dropfit::clitest {
+namespace {
+
+const fs::path kDemo = fs::path(DROPFIT_SOURCE_DIR) / "samples" / "demo-session";
+
+class Plausibility : public ::testing::Test {
+ protected:
+  void SetUp() override { fs::copy(kDemo, session(), fs::copy_options::recursive); }
+  fs::path session() const { return dir_ / "session"; }
+  fs::path out() const { return dir_ / "out"; }
+
+  void edit(const std::string& relative, const std::string& from, const std::string& to) {
+    const fs::path p = session() / relative;
+    write_text(p, replace_first(read_text(p), from, to));
+  }
+  // Replaces row `row` (0-based among data rows) of a trial's force.txt,
+  // setting the four Fz channels to `fz_each_n`.
+  void set_force_row(const std::string& trial, int row, const std::string& fz_each_n) {
+    const fs::path p = session() / "trials" / trial / "force.txt";
+    std::istringstream in(read_text(p));
+    std::string line, text;
+    int data_row = -1;
+    bool in_data = false;
+    while (std::getline(in, line)) {
+      if (in_data) ++data_row;
+      if (in_data && data_row == row) {
+        std::istringstream cols(line);
+        std::vector<std::string> c;
+        for (std::string f; cols >> f;) c.push_back(f);
+        for (int k = 5; k < 9; ++k) c[k] = fz_each_n;
+        line = fmt::format("{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}", c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8]);
+      }
+      if (line.rfind("Time(s)", 0) == 0) in_data = true;
+      text += line + "\n";
+    }
+    write_text(p, text);
+  }
+
+  CliRun run(const std::string& command = "run") {
+    std::vector<std::string> args{command, session().string(), "--out", out().string()};
+    if (command == "run") args.push_back("--no-diagnose");
+    return run_dropfit(args, dir_.path());
+  }
+  nlohmann::json trial_json(const std::string& trial) {
+    return nlohmann::json::parse(read_text(out() / "trials" / trial / "trial.json"));
+  }
+  // Every trial rejected, each reason matching `pattern`.
+  void expect_all_rejected(const CliRun& r, const std::string& pattern) {
+    EXPECT_NE(r.exit_code, 0) << r.describe();
+    EXPECT_NE(r.err.find("no usable trial"), std::string::npos) << r.describe();
+    for (int k = 1; k <= 5; ++k) {
+      const auto t = trial_json(fmt::format("trial{}", k));
+      EXPECT_FALSE(t["accepted"].get<bool>()) << t.dump();
+      EXPECT_TRUE(std::regex_search(t["reject_reason"].get<std::string>(), std::regex(pattern))) << t.dump();
+    }
+  }
+
+  TempDir dir_;
+};
+
+// 5 runs of the gates' quantities on the clean copy: all accepted.
+TEST_F(Plausibility, CleanDemoSessionIsAllAccepted) {
+  const CliRun r = run("process");
+  ASSERT_EQ(r.exit_code, 0) << r.describe();
+  for (int k = 1; k <= 5; ++k) {
+    const auto t = trial_json(fmt::format("trial{}", k));
+    EXPECT_TRUE(t["accepted"].get<bool>()) << t.dump();
+    // Impulse to maximum deformation over the video's momentum: 1 within the
+    // 1-2 % of the velocity's CI and the plate noise.
+    EXPECT_NEAR(t["impulse_ratio"].get<double>(), 1.0, 0.03) << t.dump();
+  }
+}
+
+TEST_F(Plausibility, CameraOrderSwappedInTheManifestRejectsByReprojection) {
+  edit("session.toml", R"(cameras = ["cam1", "cam2"])", R"(cameras = ["cam2", "cam1"])");
+  expect_all_rejected(run(), "markers reproject [0-9.]+ px from where they were digitised");
+}
+
+TEST_F(Plausibility, WrongFrameRateRejectsByVideoAgainstForceVelocity) {
+  edit("session.toml", "frame_rate_hz = 1000.0", "frame_rate_hz = 2000.0");
+  expect_all_rejected(run(), "impact velocity [0-9.]+ m/s from video against [0-9.e+-]+ m/s from the force impulse");
+}
+
+// The impactor's mass scaled so that impulse / (M v) is 1.87, 0.15 and 7.9e302.
+TEST_F(Plausibility, ImpulseRatioOutsidePhysicalBoundsRejects) {
+  for (const std::string mass : {"12.834", "160.0", "3.04e-302"}) {
+    SCOPED_TRACE(mass);
+    edit("session.toml", "mass_kg = 24.0", "mass_kg = " + mass);
+    expect_all_rejected(run(), "(force impulse|impulse over the contact)");
+    edit("session.toml", "mass_kg = " + mass, "mass_kg = 24.0");
+  }
+}
+
+// The plate's Fz reversed (ratio about -1) or scaled by -0.07: a pushing mat
+// cannot pull; no contact is found or the impulse is negative.
+TEST_F(Plausibility, NegativeImpulseRejects) {
+  for (int k = 1; k <= 5; ++k) {
+    const fs::path p = session() / "trials" / fmt::format("trial{}", k) / "force.txt";
+    std::istringstream in(read_text(p));
+    std::string line, text;
+    bool in_data = false;
+    while (std::getline(in, line)) {
+      if (in_data) {
+        std::istringstream cols(line);
+        std::vector<double> c;
+        for (double f; cols >> f;) c.push_back(f);
+        for (int j = 5; j < 9; ++j) c[j] *= -0.07;
+        line = fmt::format("{:.6f}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}", c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8]);
+      }
+      if (line.rfind("Time(s)", 0) == 0) in_data = true;
+      text += line + "\n";
+    }
+    write_text(p, text);
+  }
+  const CliRun r = run();
+  EXPECT_NE(r.exit_code, 0) << r.describe();
+  for (int k = 1; k <= 5; ++k) EXPECT_FALSE(trial_json(fmt::format("trial{}", k))["accepted"].get<bool>());
+}
+
+// One sample of 1e5 N (4 x 25000 N) 15 ms into trial2's contact (data row
+// 115: 100 pre-trigger rows, contact at about the trigger).
+TEST_F(Plausibility, SingleSampleForceSpikeRejectsNamingTheSample) {
+  set_force_row("trial2", 115, "25000.0");
+  const CliRun r = run("process");
+  const auto t = trial_json("trial2");
+  EXPECT_FALSE(t["accepted"].get<bool>()) << t.dump();
+  EXPECT_NE(t["reject_reason"].get<std::string>().find("single-sample spike at sample 115"), std::string::npos)
+      << t.dump();
+  EXPECT_TRUE(trial_json("trial1")["accepted"].get<bool>());
+}
+
+TEST_F(Plausibility, ForceSampleNear1e308Rejects) {
+  set_force_row("trial3", 115, "1e308");
+  const CliRun r = run("process");
+  const auto t = trial_json("trial3");
+  EXPECT_FALSE(t["accepted"].get<bool>()) << t.dump();
+  EXPECT_TRUE(std::regex_search(t["reject_reason"].get<std::string>(), std::regex("sample 115|not a finite")))
+      << t.dump();
+}
+
+// c01's u pixel in cam1 with its sign flipped (a typing slip): the DLT
+// cannot fit it, its check markers land centimetres off, every trial is
+// rejected with the calibration's reason.
+TEST_F(Plausibility, CalibrationThatFailsItsOwnCheckRejectsEveryTrial) {
+  edit("calibration/cam1.csv", "c01,158.639127,", "c01,-158.639127,");
+  expect_all_rejected(run(), "calibration failed its own check");
+}
+
+}  // namespace
+}  // namespace dropfit::clitest
