@@ -287,30 +287,45 @@ std::vector<std::string> fit_models(diagnosis::SessionState& state, const Manife
       errors[k] = e.what();
     }
   };
-  // The point-mass models first, in parallel; then Model 5, whose numeric
-  // derivatives make each start cost ~100 Model 4 fits, from Model 4's
-  // optimum (its parameters mean the same thing) with one start.
-  std::vector<size_t> first, last;
-  for (size_t k = 0; k < models.size(); ++k) (models[k] == fitting::ModelKind::Model5 ? last : first).push_back(k);
-  std::vector<std::thread> workers;
-  std::atomic<size_t> next{0};
-  const int n_threads = std::max(1, std::min<int>(threads, static_cast<int>(first.size())));
-  for (int w = 0; w < n_threads; ++w) {
-    workers.emplace_back([&] {
-      for (size_t i; (i = next++) < first.size();) fit_one(first[i], fit_options(manifest, models[first[i]]));
-    });
-  }
-  for (auto& w : workers) w.join();
-  for (size_t k : last) {
+  // Model 4 first (the canonical fit), then Model 5 warm-started from its
+  // optimum (their parameters mean the same thing) with one start and few
+  // iterations, on one worker; Models 1-3 on the others meanwhile. No model
+  // waits for a core another has left idle.
+  size_t k4 = models.size();
+  for (size_t k = 0; k < models.size(); ++k)
+    if (models[k] == fitting::ModelKind::Model4) k4 = k;
+  std::vector<size_t> queue;
+  if (k4 < models.size()) queue.push_back(k4);
+  for (size_t k = 0; k < models.size(); ++k)
+    if (k != k4 && models[k] != fitting::ModelKind::Model5) queue.push_back(k);
+  std::vector<size_t> fives;
+  for (size_t k = 0; k < models.size(); ++k)
+    if (models[k] == fitting::ModelKind::Model5) fives.push_back(k);
+  auto fit_five = [&](size_t k) {
     auto fit_opts = fit_options(manifest, models[k]);
-    for (size_t j = 0; j < models.size(); ++j) {
-      if (models[j] == fitting::ModelKind::Model4 && fits[j]) {
-        fit_opts.initial = fits[j]->params;
-        fit_opts.starts = 1;
-      }
+    if (k4 < models.size() && fits[k4]) {
+      fit_opts.initial = fits[k4]->params;
+      fit_opts.starts = 1;
+      fit_opts.max_iterations = 30;
     }
     fit_one(k, fit_opts);
-  }
+  };
+  std::atomic<size_t> next{0};
+  auto worker = [&](bool first_worker) {
+    for (size_t i; (i = next++) < queue.size();) {
+      fit_one(queue[i], fit_options(manifest, models[queue[i]]));
+      // The worker that fitted Model 4 goes on with Model 5.
+      if (queue[i] == k4)
+        for (size_t k : fives) fit_five(k);
+    }
+    if (first_worker && k4 >= models.size())
+      for (size_t k : fives) fit_five(k);
+  };
+  const int n_threads = std::max(1, std::min<int>(threads, static_cast<int>(std::max<size_t>(queue.size(), 1))));
+  std::vector<std::thread> workers;
+  for (int w = 1; w < n_threads; ++w) workers.emplace_back(worker, false);
+  worker(true);
+  for (auto& w : workers) w.join();
   for (size_t k = 0; k < models.size(); ++k) {
     const auto name = fitting::model_name(models[k]);
     if (!fits[k]) {
