@@ -1,0 +1,110 @@
+// calibration/frame.csv and calibration/<camera>.csv; see capture/io.h.
+#include "capture/io.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <map>
+#include <optional>
+#include <set>
+#include <string_view>
+
+#include "capture/text_io.h"
+#include "core/error.h"
+
+namespace dropfit::capture {
+
+using namespace detail;
+
+std::vector<CalibrationMarker> read_frame_csv(const std::string& path) {
+  const std::vector<Line> lines = read_lines(path);
+  if (lines.empty() || blank_line(lines[0].text))
+    throw InputError(path, 1, 0, "", "expected the header id,x_m,y_m,z_m,role on line 1");
+  const std::vector<Field> header = split_fields(lines[0].text, ',');
+  const std::map<std::string, int> col = header_columns(path, lines[0], header, {"id", "x_m", "y_m", "z_m", "role"}, false);
+  std::vector<CalibrationMarker> out;
+  std::map<std::string, int> seen;
+  for (std::size_t i = 1; i < lines.size(); ++i) {
+    const Line& l = lines[i];
+    if (blank_line(l.text)) continue;
+    const std::vector<Field> f = split_fields(l.text, ',');
+    if (f.size() != header.size()) row_length_error(path, l, f, header, lines[0].number);
+    CalibrationMarker m;
+    const Field& id = f[col.at("id")];
+    m.id = id.text;
+    if (m.id.empty()) throw InputError(path, l.number, id.column, "id", "empty id");
+    if (const auto [it, inserted] = seen.emplace(m.id, l.number); !inserted)
+      throw InputError(path, l.number, id.column, "id",
+                       fmt::format("duplicate id '{}' (first on line {})", m.id, it->second));
+    for (int k = 0; k < 3; ++k) {
+      const char* name = k == 0 ? "x_m" : k == 1 ? "y_m" : "z_m";
+      m.lab_m[k] = parse_number(path, l.number, f[col.at(name)], name, false);
+    }
+    const Field& role = f[col.at("role")];
+    if (role.text == "fit")
+      m.role = MarkerRole::Fit;
+    else if (role.text == "check")
+      m.role = MarkerRole::Check;
+    else
+      throw InputError(path, l.number, role.column, "role",
+                       fmt::format("role '{}' is neither 'fit' nor 'check'", role.text));
+    out.push_back(m);
+  }
+  if (out.empty()) throw InputError(path, 0, 0, "", "no calibration markers after the header");
+  return out;
+}
+
+CalibrationImage read_camera_csv(const std::string& path, const std::string& camera,
+                                 const std::vector<CalibrationMarker>& frame) {
+  const std::vector<Line> lines = read_lines(path);
+  if (lines.empty() || blank_line(lines[0].text))
+    throw InputError(path, 1, 0, "", "expected the header id,u_px,v_px on line 1");
+  const std::vector<Field> header = split_fields(lines[0].text, ',');
+  const std::map<std::string, int> col = header_columns(path, lines[0], header, {"id", "u_px", "v_px"}, false);
+  std::set<std::string> known;
+  for (const CalibrationMarker& m : frame) known.insert(m.id);
+  CalibrationImage image;
+  image.camera = camera;
+  std::map<std::string, int> seen;
+  for (std::size_t i = 1; i < lines.size(); ++i) {
+    const Line& l = lines[i];
+    if (blank_line(l.text)) continue;
+    const std::vector<Field> f = split_fields(l.text, ',');
+    if (f.size() != header.size()) row_length_error(path, l, f, header, lines[0].number);
+    CameraObservation obs;
+    const Field& id = f[col.at("id")];
+    obs.id = id.text;
+    if (obs.id.empty()) throw InputError(path, l.number, id.column, "id", "empty id");
+    if (!known.count(obs.id))
+      throw InputError(path, l.number, id.column, "id",
+                       fmt::format("marker '{}' is not in calibration/frame.csv", obs.id));
+    if (const auto [it, inserted] = seen.emplace(obs.id, l.number); !inserted)
+      throw InputError(path, l.number, id.column, "id",
+                       fmt::format("duplicate id '{}' (first on line {})", obs.id, it->second));
+    obs.image_px.x() = parse_number(path, l.number, f[col.at("u_px")], "u_px", false);
+    obs.image_px.y() = parse_number(path, l.number, f[col.at("v_px")], "v_px", false);
+    image.observations.push_back(obs);
+  }
+  return image;
+}
+
+void write_frame_csv(const std::string& path, const std::vector<CalibrationMarker>& frame) {
+  std::string s = "id,x_m,y_m,z_m,role\n";
+  auto out = std::back_inserter(s);
+  for (const CalibrationMarker& m : frame)
+    fmt::format_to(out, "{},{:.9g},{:.9g},{:.9g},{}\n", csv_field(m.id), m.lab_m.x(), m.lab_m.y(), m.lab_m.z(),
+                   m.role == MarkerRole::Fit ? "fit" : "check");
+  write_whole(path, s);
+}
+
+void write_camera_csv(const std::string& path, const CalibrationImage& image) {
+  std::string s = "id,u_px,v_px\n";
+  auto out = std::back_inserter(s);
+  for (const CameraObservation& o : image.observations)
+    fmt::format_to(out, "{},{},{}\n", csv_field(o.id), pixel(o.image_px.x()), pixel(o.image_px.y()));
+  write_whole(path, s);
+}
+
+}  // namespace dropfit::capture

@@ -1,0 +1,92 @@
+// The whole session folder; see capture/io.h.
+#include "capture/io.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <map>
+#include <optional>
+#include <set>
+#include <string_view>
+
+#include "capture/text_io.h"
+#include "core/error.h"
+
+namespace dropfit::capture {
+
+using namespace detail;
+namespace fs = std::filesystem;
+
+Session read_session(const std::string& root) {
+  const fs::path dir(root);
+  Session s;
+  s.root = root;
+  s.manifest = read_manifest((dir / "session.toml").string());
+  s.frame = read_frame_csv((dir / "calibration" / "frame.csv").string());
+  for (const std::string& camera : s.manifest.video.cameras)
+    s.images.push_back(read_camera_csv((dir / "calibration" / (camera + ".csv")).string(), camera, s.frame));
+  for (const TrialSpec& spec : s.manifest.trials) {
+    TrialData trial;
+    trial.spec = spec;
+    trial.tracks = read_xypts((dir / spec.dir / "xypts.csv").string(), s.manifest.video);
+    trial.force = read_force((dir / spec.dir / "force.txt").string(), s.manifest.forceplate);
+    s.trials.push_back(std::move(trial));
+  }
+  return s;
+}
+
+void write_session(const std::string& root, const Session& session, XyptsLayout layout) {
+  const Manifest& m = session.manifest;
+  // Check everything before writing anything.
+  std::vector<const CalibrationImage*> images;
+  for (const std::string& camera : m.video.cameras) {
+    const auto it = std::find_if(session.images.begin(), session.images.end(),
+                                 [&](const CalibrationImage& im) { return im.camera == camera; });
+    if (it == session.images.end())
+      throw Error(fmt::format("write_session: no calibration image for camera '{}'", camera));
+    images.push_back(&*it);
+  }
+  if (session.trials.size() != m.trials.size())
+    throw Error(fmt::format("write_session: {} trials but the manifest lists {}", session.trials.size(), m.trials.size()));
+  const bool flip = m.video.image_origin == ImageOrigin::BottomLeft;
+  if (flip && !(m.video.image_height_px && *m.video.image_height_px > 0.0))
+    throw Error("write_session: a bottom-left image origin needs video.image_height_px");
+  for (std::size_t i = 0; i < session.trials.size(); ++i) {
+    const TrialData& t = session.trials[i];
+    if (t.spec.id != m.trials[i].id || t.spec.dir != m.trials[i].dir)
+      throw Error(fmt::format("write_session: trial {} ('{}' in '{}') differs from the manifest's ('{}' in '{}')", i,
+                              t.spec.id, t.spec.dir, m.trials[i].id, m.trials[i].dir));
+    if (t.tracks.points != m.video.points || t.tracks.cameras != m.video.cameras)
+      throw Error(fmt::format("write_session: trial '{}' tracks' points or cameras are not the manifest's", t.spec.id));
+    if (t.force.layout == ForceLayout::Resultants &&
+        t.force.pretrigger_samples !=
+            trigger_sample_from_fraction(m.forceplate.pretrigger_fraction, static_cast<int>(t.force.data.rows())))
+      throw Error(fmt::format("write_session: trial '{}' BioWare record has {} pretrigger samples but the manifest's "
+                              "pretrigger_fraction {} of {} samples gives {}",
+                              t.spec.id, t.force.pretrigger_samples, m.forceplate.pretrigger_fraction,
+                              t.force.data.rows(),
+                              trigger_sample_from_fraction(m.forceplate.pretrigger_fraction,
+                                                           static_cast<int>(t.force.data.rows()))));
+  }
+
+  const fs::path dir(root);
+  std::error_code ec;
+  fs::create_directories(dir / "calibration", ec);
+  if (ec) throw Error(fmt::format("write_session: cannot create {}: {}", (dir / "calibration").string(), ec.message()));
+  write_manifest((dir / "session.toml").string(), m);
+  write_frame_csv((dir / "calibration" / "frame.csv").string(), session.frame);
+  for (const CalibrationImage* image : images)
+    write_camera_csv((dir / "calibration" / (image->camera + ".csv")).string(), *image);
+  for (const TrialData& t : session.trials) {
+    const fs::path trial_dir = dir / t.spec.dir;
+    fs::create_directories(trial_dir, ec);
+    if (ec) throw Error(fmt::format("write_session: cannot create {}: {}", trial_dir.string(), ec.message()));
+    write_xypts((trial_dir / "xypts.csv").string(), t.tracks, layout, m.video.image_origin,
+                flip ? *m.video.image_height_px : 0.0);
+    write_force((trial_dir / "force.txt").string(), t.force, m.forceplate.model);
+  }
+}
+
+}  // namespace dropfit::capture
