@@ -107,4 +107,62 @@ void write_camera_csv(const std::string& path, const CalibrationImage& image) {
   write_whole(path, s);
 }
 
+DltCoefficients dlt_from_bottom_left(const DltCoefficients& l, double image_height_px) {
+  // v_top = H - v_bottom with v_bottom = (L5 X + L6 Y + L7 Z + L8) / D and
+  // D = L9 X + L10 Y + L11 Z + 1, so v_top = ((H L9 - L5) X + (H L10 - L6) Y
+  // + (H L11 - L7) Z + (H - L8)) / D: the v row changes, u and D do not.
+  // The map is its own inverse.
+  DltCoefficients out = l;
+  const double h = image_height_px;
+  out(4) = h * l(8) - l(4);
+  out(5) = h * l(9) - l(5);
+  out(6) = h * l(10) - l(6);
+  out(7) = h - l(7);
+  return out;
+}
+
+std::vector<DltCoefficients> read_dlt_coefficients(const std::string& path, const VideoSpec& video) {
+  const int n_cameras = static_cast<int>(video.cameras.size());
+  const bool flip = video.image_origin == ImageOrigin::BottomLeft;
+  if (flip && !(video.image_height_px && *video.image_height_px > 0.0))
+    throw InputError(path, 0, 0, "video.image_height_px", "a bottom-left image origin needs video.image_height_px");
+  const std::vector<Line> lines = read_lines(path);
+  std::vector<DltCoefficients> out(static_cast<std::size_t>(n_cameras), DltCoefficients::Zero());
+  int row = 0;
+  bool first = true;
+  for (const Line& l : lines) {
+    if (blank_line(l.text)) continue;
+    std::vector<Field> f = split_fields(l.text, separator_of(l.text));
+    drop_trailing_empty(f);
+    const bool was_first = first;
+    first = false;
+    // A header line is tolerated: the first line, when its first field is
+    // not a number.
+    if (was_first && !f[0].text.empty()) {
+      const char c = f[0].text[0];
+      if (!(std::isdigit(static_cast<unsigned char>(c)) || c == '-' || c == '+' || c == '.')) continue;
+    }
+    if (row == 11)
+      throw InputError(path, l.number, 0, "", "more than 11 rows of coefficients (expected L1..L11, one row each)");
+    if (static_cast<int>(f.size()) != n_cameras)
+      throw InputError(path, l.number, f.size() > static_cast<std::size_t>(n_cameras) ? f[n_cameras].column : 0,
+                       fmt::format("L{}", row + 1),
+                       fmt::format("{} fields, expected one column per camera of video.cameras ({})", f.size(),
+                                   n_cameras));
+    for (int c = 0; c < n_cameras; ++c)
+      out[c](row) = parse_number(path, l.number, f[c], fmt::format("L{} of {}", row + 1, video.cameras[c]), false);
+    ++row;
+  }
+  if (row != 11)
+    throw InputError(path, 0, 0, "", fmt::format("{} rows of coefficients, expected 11 (L1..L11)", row));
+  for (int c = 0; c < n_cameras; ++c) {
+    if (out[c].head<3>().isZero() || out[c].segment<3>(4).isZero())
+      throw InputError(path, 0, 0, video.cameras[c],
+                       fmt::format("camera {} (column {}): L1..L3 or L5..L7 are all zero, not a camera",
+                                   video.cameras[c], c + 1));
+    if (flip) out[c] = dlt_from_bottom_left(out[c], *video.image_height_px);
+  }
+  return out;
+}
+
 }  // namespace dropfit::capture

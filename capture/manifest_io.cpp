@@ -228,13 +228,25 @@ class ManifestReader {
     } catch (const toml::parse_error& e) {
       fail(e.source(), "", std::string(e.description()));
     }
-    check_keys(root, "", {"session", "impactor", "mat", "video", "forceplate", "trial"});
+    check_keys(root, "", {"session", "impactor", "mat", "video", "forceplate", "trial", "calibration"});
     Manifest m;
 
     if (const toml::table* t = table(root, "session", false)) {
       check_keys(*t, "session", {"name", "gravity_m_s2"});
       m.name = string(*t, "session", "name", false).value_or("");
       m.gravity_m_s2 = number(*t, "session", "gravity_m_s2", Check::Positive, false).value_or(9.81);
+    }
+
+    if (const toml::table* t = table(root, "calibration", false)) {
+      check_keys(*t, "calibration", {"dlt_coefficients"});
+      m.calibration.dlt_coefficients = string(*t, "calibration", "dlt_coefficients", false).value_or("");
+      const toml::node* node = t->get("dlt_coefficients");
+      if (node && m.calibration.dlt_coefficients.empty())
+        fail(*node, "calibration.dlt_coefficients", "empty file name");
+      if (node && fs::path(m.calibration.dlt_coefficients).is_absolute())
+        fail(*node, "calibration.dlt_coefficients",
+             fmt::format("\"{}\" is absolute; it is relative to the session folder",
+                         m.calibration.dlt_coefficients));
     }
 
     const toml::table& video = *table(root, "video", true);
@@ -553,6 +565,8 @@ void write_manifest(const std::string& path, const Manifest& m) {
                  toml_string(p.model), toml_float(p.sample_rate_hz), toml_float(p.trigger_threshold_n),
                  toml_float(p.pretrigger_fraction), toml_float(p.a_m), toml_float(p.b_m), toml_float(p.az0_m),
                  toml_float(p.mat_top_z_m));
+  if (!m.calibration.dlt_coefficients.empty())
+    fmt::format_to(out, "\n[calibration]\ndlt_coefficients = {}\n", toml_string(m.calibration.dlt_coefficients));
   for (const TrialSpec& t : m.trials)
     fmt::format_to(out, "\n[[trial]]\nid = {}\ndir = {}\n", toml_string(t.id), toml_string(t.dir));
   write_whole(path, s);

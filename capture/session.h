@@ -59,6 +59,13 @@ struct TrialSpec {
   std::string dir;  // relative to the session folder
 };
 
+// [calibration]: an existing calibration instead of a frame (version 2).
+struct CalibrationSpec {
+  // Relative to the session folder; empty: calibrate from
+  // calibration/frame.csv and camN.csv.
+  std::string dlt_coefficients;
+};
+
 struct Manifest {
   std::string name;
   double gravity_m_s2 = 9.81;
@@ -67,6 +74,7 @@ struct Manifest {
   VideoSpec video;
   ForcePlateSpec forceplate;
   std::vector<TrialSpec> trials;
+  CalibrationSpec calibration;
 };
 
 // calibration/frame.csv
@@ -123,13 +131,28 @@ struct TrialData {
   TrialSpec spec;
   MarkerTracks2D tracks;
   ForceRecord force;
+  std::string xypts_path;  // the marker table read (xypts.csv or a prefixed *xypts.csv)
+  // DLTdv's offsets.csv beside the marker table, one per camera (empty when
+  // absent): row r of camera c was digitised in that camera's video frame
+  // r + offset. DLTdv writes its rows already aligned, so the tracks are not
+  // shifted; the offsets say which video frame each row came from.
+  std::vector<int> frame_offsets;
 };
+
+// 11 DLT coefficients L1..L11 of one camera, top-left image origin.
+using DltCoefficients = Eigen::Matrix<double, 11, 1>;
 
 struct Session {
   std::string root;  // folder it was read from
   Manifest manifest;
+  // Empty when the manifest gives DLT coefficients and the session has no
+  // calibration/frame.csv (nothing to check them with).
   std::vector<CalibrationMarker> frame;
-  std::vector<CalibrationImage> images;  // one per camera, in manifest order
+  std::vector<CalibrationImage> images;  // one per camera, in manifest order (empty with frame)
+  // From [calibration] dlt_coefficients, converted to the top-left origin:
+  // one per camera in manifest order; empty when the session is calibrated
+  // from its frame.
+  std::vector<DltCoefficients> dlt_coefficients;
   std::vector<TrialData> trials;
 };
 

@@ -19,19 +19,42 @@ namespace dropfit::capture {
 using namespace detail;
 namespace fs = std::filesystem;
 
+namespace {
+bool exists_entry(const fs::path& p) {
+  std::error_code ec;
+  return fs::exists(fs::symlink_status(p, ec));
+}
+}  // namespace
+
 Session read_session(const std::string& root) {
   const fs::path dir(root);
   Session s;
   s.root = root;
   s.manifest = read_manifest((dir / "session.toml").string());
-  s.frame = read_frame_csv((dir / "calibration" / "frame.csv").string());
-  for (const std::string& camera : s.manifest.video.cameras)
-    s.images.push_back(read_camera_csv((dir / "calibration" / (camera + ".csv")).string(), camera, s.frame));
-  for (const TrialSpec& spec : s.manifest.trials) {
+  const Manifest& m = s.manifest;
+  const bool given = !m.calibration.dlt_coefficients.empty();
+  if (given) s.dlt_coefficients = read_dlt_coefficients((dir / m.calibration.dlt_coefficients).string(), m.video);
+  // With given coefficients the frame only checks them: optional, and a
+  // camera without its file saw none of its markers.
+  const fs::path frame = dir / "calibration" / "frame.csv";
+  if (!given || exists_entry(frame)) {
+    s.frame = read_frame_csv(frame.string());
+    for (const std::string& camera : m.video.cameras) {
+      const fs::path file = dir / "calibration" / (camera + ".csv");
+      if (given && !exists_entry(file))
+        s.images.push_back(CalibrationImage{camera, {}});
+      else
+        s.images.push_back(read_camera_csv(file.string(), camera, s.frame));
+    }
+  }
+  for (const TrialSpec& spec : m.trials) {
     TrialData trial;
     trial.spec = spec;
-    trial.tracks = read_xypts((dir / spec.dir / "xypts.csv").string(), s.manifest.video);
-    trial.force = read_force((dir / spec.dir / "force.txt").string(), s.manifest.forceplate);
+    trial.xypts_path = find_xypts((dir / spec.dir).string());
+    trial.tracks = read_xypts(trial.xypts_path, m.video);
+    const std::string offsets = offsets_path(trial.xypts_path);
+    if (exists_entry(offsets)) trial.frame_offsets = read_offsets(offsets, static_cast<int>(m.video.cameras.size()));
+    trial.force = read_force((dir / spec.dir / "force.txt").string(), m.forceplate);
     s.trials.push_back(std::move(trial));
   }
   return s;

@@ -123,6 +123,10 @@ std::vector<Field> split_fields(std::string_view line, char sep) {
   return out;
 }
 
+char separator_of(std::string_view line) {
+  return line.find('\t') != std::string_view::npos && line.find(',') == std::string_view::npos ? '\t' : ',';
+}
+
 // Trailing empty fields (a trailing separator) are dropped.
 void drop_trailing_empty(std::vector<Field>& fields) {
   while (fields.size() > 1 && fields.back().text.empty()) fields.pop_back();

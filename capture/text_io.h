@@ -30,6 +30,8 @@ void require_file(const std::string& path);
 // Every line of a text file (CR LF handled, UTF-8 BOM skipped).
 std::vector<Line> read_lines(const std::string& path);
 std::vector<Field> split_fields(std::string_view line, char sep);
+// Tab when the line has tabs and no comma, else comma.
+char separator_of(std::string_view line);
 void drop_trailing_empty(std::vector<Field>& fields);
 bool iequals_prefix(std::string_view s, std::string_view prefix);
 bool iequals(std::string_view a, std::string_view b);
