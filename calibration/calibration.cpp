@@ -623,8 +623,14 @@ std::string CalibrationResult::model() const {
 std::string CalibrationResult::report() const {
   std::string out = fmt::format("calibration ({}), {} cameras\n", model(), cameras.size());
   for (const auto& c : cameras) {
-    out += fmt::format("  {}: {} fit markers, reprojection RMS {:.2f} px", label_of(c.camera.name), c.n_fit_points,
-                       c.fit_rms_px);
+    if (c.n_fit_points == 0)  // given coefficients (given_calibration)
+      out += std::isnan(c.fit_rms_px)
+                 ? fmt::format("  {}: coefficients given, no frame markers seen", label_of(c.camera.name))
+                 : fmt::format("  {}: coefficients given, reprojection RMS {:.2f} px on the frame markers",
+                               label_of(c.camera.name), c.fit_rms_px);
+    else
+      out += fmt::format("  {}: {} fit markers, reprojection RMS {:.2f} px", label_of(c.camera.name),
+                         c.n_fit_points, c.fit_rms_px);
     if (c.camera.has_distortion())
       out += fmt::format(", k1 {:.4f} k2 {:.4f} p1 {:.5f} p2 {:.5f} k3 {:.4f}", c.camera.distortion[0],
                          c.camera.distortion[1], c.camera.distortion[2], c.camera.distortion[3],

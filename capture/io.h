@@ -156,6 +156,9 @@ int trigger_sample_from_fraction(double pretrigger_fraction, int n_samples);
 // into TrialData::frame_offsets. A missing file is an InputError naming it.
 // Reads only; never writes.
 Session read_session(const std::string& root);
+// The calibration part of read_session alone: fills session.frame, .images
+// and .dlt_coefficients from the folder `root` for session.manifest.
+void read_session_calibration(const std::string& root, Session& session);
 
 // Writers (top-left origin, DLTdv 8.3 layout unless asked otherwise).
 // Formats: metres and other manifest values at full precision (shortest

@@ -26,12 +26,12 @@ bool exists_entry(const fs::path& p) {
 }
 }  // namespace
 
-Session read_session(const std::string& root) {
+void read_session_calibration(const std::string& root, Session& s) {
   const fs::path dir(root);
-  Session s;
-  s.root = root;
-  s.manifest = read_manifest((dir / "session.toml").string());
   const Manifest& m = s.manifest;
+  s.frame.clear();
+  s.images.clear();
+  s.dlt_coefficients.clear();
   const bool given = !m.calibration.dlt_coefficients.empty();
   if (given) s.dlt_coefficients = read_dlt_coefficients((dir / m.calibration.dlt_coefficients).string(), m.video);
   // With given coefficients the frame only checks them: optional, and a
@@ -47,6 +47,15 @@ Session read_session(const std::string& root) {
         s.images.push_back(read_camera_csv(file.string(), camera, s.frame));
     }
   }
+}
+
+Session read_session(const std::string& root) {
+  const fs::path dir(root);
+  Session s;
+  s.root = root;
+  s.manifest = read_manifest((dir / "session.toml").string());
+  const Manifest& m = s.manifest;
+  read_session_calibration(root, s);
   for (const TrialSpec& spec : m.trials) {
     TrialData trial;
     trial.spec = spec;

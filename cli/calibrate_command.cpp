@@ -28,11 +28,7 @@ void add_calibrate(CLI::App& app, CommandContext& /*ctx*/) {
     Session session;
     session.root = args->session;
     session.manifest = manifest;
-    session.frame = capture::read_frame_csv((root / "calibration" / "frame.csv").string());
-    for (const auto& camera : manifest.video.cameras) {
-      session.images.push_back(
-          capture::read_camera_csv((root / "calibration" / (camera + ".csv")).string(), camera, session.frame));
-    }
+    capture::read_session_calibration(args->session, session);
     calibration::CalibrationOptions options;
     options.dlt.fit_distortion = args->distortion;
     const auto result = pipeline::calibrate_session(session, options);

@@ -40,8 +40,11 @@ calibration::CalibrationResult calibrate_session(const Session& session,
   // used as they are, checked on the frame's check markers when there is one.
   if (!session.dlt_coefficients.empty()) {
     std::vector<calibration::Camera> cameras;
-    for (std::size_t c = 0; c < session.dlt_coefficients.size(); ++c)
-      cameras.push_back({session.manifest.video.cameras[c], session.dlt_coefficients[c]});
+    for (std::size_t c = 0; c < session.dlt_coefficients.size(); ++c) {
+      calibration::Camera& camera = cameras.emplace_back();
+      camera.name = session.manifest.video.cameras[c];
+      camera.dlt = session.dlt_coefficients[c];
+    }
     return calibration::given_calibration(cameras, calibration_markers(session.frame), camera_views(session.images));
   }
   return calibration::calibrate(calibration_markers(session.frame), camera_views(session.images), options);

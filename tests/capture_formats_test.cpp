@@ -326,10 +326,16 @@ TEST(CaptureFormats, BottomLeftCoefficientsConvertToTopLeft) {
   v.image_height_px = height;
   write_text(dir.file("coefs.csv"), coefficients_csv(bottom));
   const auto read = read_dlt_coefficients(dir.file("coefs.csv"), v);
-  std::vector<calibration::Camera> converted = {{"cam1", read[0]}, {"cam2", read[1]}};
-  std::vector<calibration::Camera> bottom_cams = {{"cam1", bottom[0]}, {"cam2", bottom[1]}};
+  const auto camera = [](const std::string& name, const DltCoefficients& dlt) {
+    calibration::Camera c;
+    c.name = name;
+    c.dlt = dlt;
+    return c;
+  };
+  std::vector<calibration::Camera> converted = {camera("cam1", read[0]), camera("cam2", read[1])};
+  std::vector<calibration::Camera> bottom_cams = {camera("cam1", bottom[0]), camera("cam2", bottom[1])};
   for (int c = 0; c < 2; ++c) EXPECT_LT((read[c] - top[c].dlt).cwiseAbs().maxCoeff(), 1e-9 * top[c].dlt.cwiseAbs().maxCoeff());
-  for (const Eigen::Vector3d lab : {Eigen::Vector3d(0.1, -0.2, 0.3), Eigen::Vector3d(-0.4, 0.25, 0.0),
+  for (const Eigen::Vector3d& lab : {Eigen::Vector3d(0.1, -0.2, 0.3), Eigen::Vector3d(-0.4, 0.25, 0.0),
                                     Eigen::Vector3d(0.45, 0.3, 0.8)}) {
     std::vector<Eigen::Vector2d> px_bottom, px_top;
     for (int c = 0; c < 2; ++c) {
