@@ -22,19 +22,22 @@ std::vector<CalibrationMarker> read_frame_csv(const std::string& path) {
   const std::vector<Line> lines = read_lines(path);
   if (lines.empty() || blank_line(lines[0].text))
     throw InputError(path, 1, 0, "", "expected the header id,x_m,y_m,z_m,role on line 1");
-  const std::vector<Field> header = split_fields(lines[0].text, ',');
+  const std::vector<Field> header = split_fields(lines[0].text, ',', 5);
   const std::map<std::string, int> col = header_columns(path, lines[0], header, {"id", "x_m", "y_m", "z_m", "role"}, false);
   std::vector<CalibrationMarker> out;
   std::map<std::string, int> seen;
   for (std::size_t i = 1; i < lines.size(); ++i) {
     const Line& l = lines[i];
     if (blank_line(l.text)) continue;
-    const std::vector<Field> f = split_fields(l.text, ',');
+    const std::vector<Field> f = split_fields(l.text, ',', header.size());
     if (f.size() != header.size()) row_length_error(path, l, f, header, lines[0].number);
     CalibrationMarker m;
     const Field& id = f[col.at("id")];
     m.id = id.text;
     if (m.id.empty()) throw InputError(path, l.number, id.column, "id", "empty id");
+    if (m.id.size() > kMaxNameChars)
+      throw InputError(path, l.number, id.column, "id",
+                       fmt::format("an id of {} characters, more than {}", m.id.size(), kMaxNameChars));
     if (const auto [it, inserted] = seen.emplace(m.id, l.number); !inserted)
       throw InputError(path, l.number, id.column, "id",
                        fmt::format("duplicate id '{}' (first on line {})", m.id, it->second));
@@ -61,7 +64,7 @@ CalibrationImage read_camera_csv(const std::string& path, const std::string& cam
   const std::vector<Line> lines = read_lines(path);
   if (lines.empty() || blank_line(lines[0].text))
     throw InputError(path, 1, 0, "", "expected the header id,u_px,v_px on line 1");
-  const std::vector<Field> header = split_fields(lines[0].text, ',');
+  const std::vector<Field> header = split_fields(lines[0].text, ',', 3);
   const std::map<std::string, int> col = header_columns(path, lines[0], header, {"id", "u_px", "v_px"}, false);
   std::set<std::string> known;
   for (const CalibrationMarker& m : frame) known.insert(m.id);
@@ -71,7 +74,7 @@ CalibrationImage read_camera_csv(const std::string& path, const std::string& cam
   for (std::size_t i = 1; i < lines.size(); ++i) {
     const Line& l = lines[i];
     if (blank_line(l.text)) continue;
-    const std::vector<Field> f = split_fields(l.text, ',');
+    const std::vector<Field> f = split_fields(l.text, ',', header.size());
     if (f.size() != header.size()) row_length_error(path, l, f, header, lines[0].number);
     CameraObservation obs;
     const Field& id = f[col.at("id")];
@@ -132,7 +135,7 @@ std::vector<DltCoefficients> read_dlt_coefficients(const std::string& path, cons
   bool first = true;
   for (const Line& l : lines) {
     if (blank_line(l.text)) continue;
-    std::vector<Field> f = split_fields(l.text, separator_of(l.text));
+    std::vector<Field> f = split_fields(l.text, separator_of(l.text), static_cast<std::size_t>(n_cameras) + 1);
     drop_trailing_empty(f);
     const bool was_first = first;
     first = false;

@@ -221,6 +221,7 @@ class ManifestReader {
       if (in.bad()) throw InputError(file_, 0, 0, "", "cannot read");
       raw = text.str();
     }
+    check_text(raw);
     lines_ = split_semicolon_lines(raw);
     toml::table root;
     try {
@@ -252,7 +253,7 @@ class ManifestReader {
     const toml::table& video = *table(root, "video", true);
     check_keys(video, "video",
                {"cameras", "frame_rate_hz", "points", "trigger_frame", "image_origin", "image_height_px"});
-    m.video.cameras = names(video, "video", "cameras", true);
+    m.video.cameras = names(video, "video", "cameras", true, kMaxCameras);
     for (std::size_t i = 0; i < m.video.cameras.size(); ++i) {
       const std::string& cam = m.video.cameras[i];
       if (cam.find_first_of("/\\") != std::string::npos || cam == "." || cam == "..")
@@ -452,13 +453,15 @@ class ManifestReader {
 
   // A list of unique non-empty names (non-empty list when `non_empty`).
   std::vector<std::string> names(const toml::table& t, const std::string& prefix, std::string_view key,
-                                 bool non_empty) const {
+                                 bool non_empty, std::size_t max_count = kMaxPoints) const {
     const toml::node* node = t.get(key);
     if (!node) missing(t, prefix, key);
     const std::string field = dotted(prefix, key);
     const toml::array* arr = node->as_array();
     if (!arr) fail(*node, field, fmt::format("wrong type: expected an array of strings, found {}", type_name(*node)));
     if (non_empty && arr->empty()) fail(*node, field, "must not be empty");
+    if (arr->size() > max_count)
+      fail(*node, field, fmt::format("{} names, more than the {} dropfit accepts here", arr->size(), max_count));
     std::vector<std::string> out;
     for (std::size_t i = 0; i < arr->size(); ++i) {
       const toml::node& el = *arr->get(i);
@@ -467,6 +470,8 @@ class ManifestReader {
         fail(el, el_field, fmt::format("wrong type: expected a string, found {}", type_name(el)));
       const std::string& name = el.as_string()->get();
       if (name.empty()) fail(el, el_field, "empty name");
+      if (name.size() > kMaxNameChars)
+        fail(el, el_field, fmt::format("a name of {} bytes, more than the {} allowed", name.size(), kMaxNameChars));
       if (std::find(out.begin(), out.end(), name) != out.end())
         fail(el, el_field, fmt::format("duplicate name \"{}\"", name));
       out.push_back(name);
@@ -496,6 +501,64 @@ class ManifestReader {
                        arr ? fmt::format("{} elements", arr->size()) : type_name(*node)));
     return {checked_number(*arr->get(0), "impactor.footprint_m[0]", Check::Positive),
             checked_number(*arr->get(1), "impactor.footprint_m[1]", Check::Positive)};
+  }
+
+  // What toml++ must never see: a manifest over 4 MiB, bytes that are not
+  // UTF-8, and non-ASCII characters outside strings and comments (TOML
+  // allows none there, and toml++ 3.3 reaches undefined behaviour on some of
+  // them where the grammar allows whitespace).
+  void check_text(std::string_view raw) const {
+    constexpr std::size_t kMaxManifestBytes = 4u << 20;
+    if (raw.size() > kMaxManifestBytes)
+      throw InputError(file_, 0, 0, "",
+                       fmt::format("{} bytes, more than the {} bytes a manifest may have", raw.size(),
+                                   kMaxManifestBytes));
+    if (const auto bad = first_invalid_utf8(raw))
+      throw InputError(file_, bad->first, bad->second, "", "not UTF-8 text (an invalid byte sequence starts here)");
+    if (raw.substr(0, 3) == "\xEF\xBB\xBF") raw.remove_prefix(3);
+    enum class S { Normal, Comment, Basic, Literal, MultiBasic, MultiLiteral };
+    S state = S::Normal;
+    int line = 1, column = 1;
+    for (std::size_t i = 0; i < raw.size(); ++i) {
+      const char c = raw[i];
+      const auto u = static_cast<unsigned char>(c);
+      const bool lead = (u & 0xC0) != 0x80;  // counts one code point
+      if (state == S::Normal && u >= 0x80)
+        throw InputError(file_, line, column, "",
+                         "a non-ASCII character outside a string or comment (TOML allows none there)");
+      switch (state) {
+        case S::Normal:
+          if (c == '#') state = S::Comment;
+          else if (raw.substr(i, 3) == "\"\"\"") { state = S::MultiBasic; i += 2; column += 2; }
+          else if (raw.substr(i, 3) == "'''") { state = S::MultiLiteral; i += 2; column += 2; }
+          else if (c == '"') state = S::Basic;
+          else if (c == '\'') state = S::Literal;
+          break;
+        case S::Comment:
+          if (c == '\n') state = S::Normal;
+          break;
+        case S::Basic:
+          if (c == '\\' && i + 1 < raw.size() && raw[i + 1] != '\n') { ++i; ++column; }
+          else if (c == '"' || c == '\n') state = S::Normal;  // an unterminated string is toml++'s to report
+          break;
+        case S::Literal:
+          if (c == '\'' || c == '\n') state = S::Normal;
+          break;
+        case S::MultiBasic:
+          if (c == '\\' && i + 1 < raw.size() && raw[i + 1] != '\n') { ++i; ++column; }
+          else if (raw.substr(i, 3) == "\"\"\"") { state = S::Normal; i += 2; column += 2; }
+          break;
+        case S::MultiLiteral:
+          if (raw.substr(i, 3) == "'''") { state = S::Normal; i += 2; column += 2; }
+          break;
+      }
+      if (c == '\n') {
+        ++line;
+        column = 1;
+      } else if (lead) {
+        ++column;
+      }
+    }
   }
 
   std::string file_;

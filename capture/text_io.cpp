@@ -19,6 +19,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <optional>
 
 #include "core/error.h"
 
@@ -50,8 +51,22 @@ std::string_view trim(std::string_view s) {
 void require_file(const std::string& path) {
   std::error_code ec;
   const fs::file_status st = fs::status(path, ec);
-  if (!fs::exists(st)) throw InputError(path, 0, 0, "", "file not found");
+  if (ec == std::errc::too_many_symbolic_link_levels)
+    throw InputError(path, 0, 0, "", "symbolic link loop: the path never reaches a file");
+  if (!fs::exists(st)) {
+    std::error_code ec2;
+    if (fs::is_symlink(fs::symlink_status(path, ec2)))
+      throw InputError(path, 0, 0, "", "broken symbolic link: its target does not exist");
+    if (ec && ec != std::errc::no_such_file_or_directory)
+      throw InputError(path, 0, 0, "", fmt::format("cannot reach the file: {}", ec.message()));
+    throw InputError(path, 0, 0, "", "file not found");
+  }
   if (fs::is_directory(st)) throw InputError(path, 0, 0, "", "is a folder, expected a file");
+  if (!fs::is_regular_file(st)) throw InputError(path, 0, 0, "", "not a regular file");
+  const std::uintmax_t size = fs::file_size(path, ec);
+  if (!ec && size > kMaxFileBytes)
+    throw InputError(path, 0, 0, "",
+                     fmt::format("{} bytes, more than the {} bytes any session file may have", size, kMaxFileBytes));
 }
 
 // Every line of a text file (CR LF handled, UTF-8 BOM skipped), read with
@@ -79,7 +94,7 @@ std::vector<Line> read_lines(const std::string& path) {
 // Splits one line at `sep`. A field may be enclosed in double quotes ("" is
 // a quote inside); blanks around a field are dropped (tabs only when they
 // are not the separator).
-std::vector<Field> split_fields(std::string_view line, char sep) {
+std::vector<Field> split_fields(std::string_view line, char sep, std::size_t max_fields) {
   std::vector<Field> out;
   auto blank = [sep](char c) { return c == ' ' || (c == '\t' && sep != '\t'); };
   std::size_t i = 0;
@@ -119,8 +134,58 @@ std::vector<Field> split_fields(std::string_view line, char sep) {
     out.push_back(std::move(f));
     if (j >= line.size()) break;
     i = j + 1;
+    if (max_fields > 0 && out.size() == max_fields) {
+      // More fields than the caller can use: the rest is one last field, so
+      // that a line of millions of separators costs no more than this.
+      out.push_back(Field{std::string(line.substr(i, std::min<std::size_t>(line.size() - i, 64))),
+                          static_cast<int>(i) + 1});
+      break;
+    }
   }
   return out;
+}
+
+std::optional<std::pair<int, int>> first_invalid_utf8(std::string_view text) {
+  int line = 1, column = 1;
+  std::size_t i = 0;
+  while (i < text.size()) {
+    const auto c = static_cast<unsigned char>(text[i]);
+    std::size_t n = 0;
+    std::uint32_t cp = 0;
+    if (c < 0x80) {
+      n = 1;
+      cp = c;
+    } else if ((c & 0xE0) == 0xC0) {
+      n = 2;
+      cp = c & 0x1F;
+    } else if ((c & 0xF0) == 0xE0) {
+      n = 3;
+      cp = c & 0x0F;
+    } else if ((c & 0xF8) == 0xF0) {
+      n = 4;
+      cp = c & 0x07;
+    } else {
+      return std::make_pair(line, column);
+    }
+    if (i + n > text.size()) return std::make_pair(line, column);
+    for (std::size_t k = 1; k < n; ++k) {
+      const auto cc = static_cast<unsigned char>(text[i + k]);
+      if ((cc & 0xC0) != 0x80) return std::make_pair(line, column);
+      cp = (cp << 6) | (cc & 0x3F);
+    }
+    // Overlong forms, surrogates and code points beyond U+10FFFF.
+    if ((n == 2 && cp < 0x80) || (n == 3 && cp < 0x800) || (n == 4 && cp < 0x10000) ||
+        (cp >= 0xD800 && cp <= 0xDFFF) || cp > 0x10FFFF)
+      return std::make_pair(line, column);
+    if (c == '\n') {
+      ++line;
+      column = 1;
+    } else {
+      ++column;
+    }
+    i += n;
+  }
+  return std::nullopt;
 }
 
 char separator_of(std::string_view line) {

@@ -109,12 +109,21 @@ MarkerTracks2D read_xypts(const std::string& path, const VideoSpec& video) {
 
   const Line& head = lines[0];
   const char sep = separator_of(head.text);
-  const std::vector<Field> header = split_fields(head.text, sep);
+  // Each manifest point/camera/axis has one column at most.
+  const std::vector<Field> header = split_fields(head.text, sep, static_cast<std::size_t>(width));
+  if (header.size() > static_cast<std::size_t>(width))
+    throw InputError(path, head.number, header[width].column, "",
+                     fmt::format("more than {} columns, the most {} points and {} cameras can have", width, n_points,
+                                 n_cameras));
   std::vector<int> target(header.size(), -1);  // column of uv_px for each file column
   std::vector<int> source(width, -1);           // file column for each column of uv_px
   int layout = -1;
   for (std::size_t j = 0; j < header.size(); ++j) {
     const Field& f = header[j];
+    if (f.text.size() > kMaxNameChars + 16)
+      throw InputError(path, head.number, f.column, shorten(f.text),
+                       fmt::format("a column name of {} characters, more than any point name allows ({})",
+                                   f.text.size(), kMaxNameChars));
     const std::optional<ColumnName> name = parse_column_name(f.text);
     if (!name)
       throw InputError(path, head.number, f.column, f.text,
@@ -179,7 +188,7 @@ MarkerTracks2D read_xypts(const std::string& path, const VideoSpec& video) {
   for (std::size_t i = 1; i < end; ++i) {
     const Line& l = lines[i];
     if (blank_line(l.text)) throw InputError(path, l.number, 0, "", "blank line inside the data (each row is a frame)");
-    const std::vector<Field> f = split_fields(l.text, sep);
+    const std::vector<Field> f = split_fields(l.text, sep, header.size());
     if (f.size() != header.size()) row_length_error(path, l, f, header, lines[0].number);
     // A point or point/camera pair absent from the file was never digitised:
     // its columns stay NaN.
@@ -267,7 +276,7 @@ std::vector<int> read_offsets(const std::string& path, int n_cameras) {
   for (std::size_t i = 0; i < lines.size(); ++i) {
     const Line& l = lines[i];
     if (blank_line(l.text)) continue;
-    std::vector<Field> f = split_fields(l.text, separator_of(l.text));
+    std::vector<Field> f = split_fields(l.text, separator_of(l.text), static_cast<std::size_t>(n_cameras) + 1);
     drop_trailing_empty(f);
     // A header line (DLTdv: cam1_offset,...; or any words) is skipped.
     if (rows.empty() && row_lines.empty() && !f.empty() && !f[0].text.empty() &&
