@@ -73,8 +73,9 @@ FrameSequence list_frame_sequence(const std::string& folder) {
     const std::string stem = de.path().stem().string();
     const auto [number, pattern] = frame_name_parts(stem);
     if (number == -1) throw InputError(de.path().string(), 0, 0, "", "frame file name holds no frame number");
-    if (number < 0 || number > 100000000)
-      throw InputError(de.path().string(), 0, 0, "", "frame number too large (above 100,000,000)");
+    if (number < 0 || number > 1000000)
+      throw InputError(de.path().string(), 0, 0, "",
+                       "frame number too large (above 1,000,000; every row before it would be kept empty)");
     entries.push_back({number, pattern + ext, de.path().string()});
   }
   if (ec) throw InputError(folder, 0, 0, "", "cannot list the frames folder: " + ec.message());

@@ -21,8 +21,8 @@
 namespace dropfit::capture {
 
 // The frame number a sequence file's stem (name without extension) gives;
-// -1 when it holds no digits. Numbers above 100,000,000 are refused by the
-// readers below (a sequence cannot start there sensibly).
+// -1 when it holds no digits. Numbers above 1,000,000 are refused by the
+// readers below (every row before the first frame is kept, as NaN).
 long long frame_number_of(const std::string& stem);
 
 // The image files of a sequence folder (PNG or TIFF), in frame order, and
