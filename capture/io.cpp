@@ -26,6 +26,8 @@
 #include <string_view>
 #include <toml++/toml.h>
 
+#include "capture/force_internal.h"
+#include "capture/force_io.h"
 #include "core/error.h"
 
 namespace dropfit::capture {
@@ -547,7 +549,7 @@ class ManifestReader {
     const toml::table& plate = *table(root, "forceplate", true);
     check_keys(plate, "forceplate",
                {"model", "sample_rate_hz", "trigger_threshold_n", "pretrigger_fraction", "a_m", "b_m", "az0_m",
-                "mat_top_z_m"});
+                "mat_top_z_m", "plate"});
     m.forceplate.model = string(plate, "forceplate", "model", false).value_or("");
     m.forceplate.sample_rate_hz = *number(plate, "forceplate", "sample_rate_hz", Check::Positive, true);
     m.forceplate.trigger_threshold_n = *number(plate, "forceplate", "trigger_threshold_n", Check::Positive, true);
@@ -556,6 +558,7 @@ class ManifestReader {
     m.forceplate.b_m = *number(plate, "forceplate", "b_m", Check::Positive, true);
     m.forceplate.az0_m = *number(plate, "forceplate", "az0_m", Check::Finite, true);
     m.forceplate.mat_top_z_m = *number(plate, "forceplate", "mat_top_z_m", Check::Finite, true);
+    m.forceplate.plate = static_cast<int>(integer(plate, "forceplate", "plate", 1, false).value_or(1));
 
     const toml::array& trials = table_array(root, "", "trial");
     std::map<std::string, std::size_t> seen;
@@ -832,195 +835,7 @@ std::string xypts_column(XyptsLayout layout, int point, const std::string& name,
 constexpr std::array<const char*, 8> kEightChannels = {"Fx12", "Fx34", "Fy14", "Fy23", "Fz1", "Fz2", "Fz3", "Fz4"};
 constexpr std::array<const char*, 8> kResultants = {"Fx", "Fy", "Fz", "Mx", "My", "Mz", "Ax", "Ay"};
 
-// ---------------------------------------------------------------------------
-// force.txt
-// ---------------------------------------------------------------------------
-
-ForceRecord read_eight_channel(const std::string& path, const std::vector<Line>& lines, std::size_t header,
-                               const ForcePlateSpec& plate) {
-  ForceRecord rec;
-  rec.layout = ForceLayout::EightChannel;
-  struct Entry {
-    Field value;
-    int line;
-  };
-  std::map<std::string, Entry> keys;
-  for (std::size_t i = 0; i < header; ++i) {
-    const Line& l = lines[i];
-    if (blank_line(l.text)) continue;
-    const std::vector<Field> f = split_fields(l.text, '\t');
-    if (f.size() < 2)
-      throw InputError(path, l.number, 1, f.empty() ? "" : f[0].text,
-                       "expected a 'key<TAB>value' header line before the column header");
-    if (!keys.emplace(f[0].text, Entry{f[1], l.number}).second)
-      throw InputError(path, l.number, f[0].column, f[0].text, fmt::format("duplicate header key '{}'", f[0].text));
-  }
-  auto need = [&](const char* key) -> const Entry& {
-    const auto it = keys.find(key);
-    if (it == keys.end())
-      throw InputError(path, 0, 0, key, fmt::format("missing header line '{}<TAB>value'", key));
-    return it->second;
-  };
-  const Entry& rate = need("Sample rate");
-  rec.sample_rate_hz = parse_number(path, rate.line, rate.value, "Sample rate", false);
-  if (!(rec.sample_rate_hz > 0.0))
-    throw InputError(path, rate.line, rate.value.column, "Sample rate", "must be positive");
-  if (std::abs(rec.sample_rate_hz - plate.sample_rate_hz) > 1e-6 * plate.sample_rate_hz)
-    throw InputError(path, rate.line, rate.value.column, "Sample rate",
-                     fmt::format("sample rate {} Hz disagrees with the manifest's forceplate.sample_rate_hz = {} Hz",
-                                 rec.sample_rate_hz, plate.sample_rate_hz));
-  const Entry& samples_entry = need("Samples");
-  const long long samples = parse_integer(path, samples_entry.line, samples_entry.value, "Samples");
-  if (samples < 1 || samples > std::numeric_limits<int>::max())
-    throw InputError(path, samples_entry.line, samples_entry.value.column, "Samples", "must be a positive integer");
-  const Entry& pre = need("Pretrigger samples");
-  const long long pretrigger = parse_integer(path, pre.line, pre.value, "Pretrigger samples");
-  if (pretrigger < 0 || pretrigger >= samples)
-    throw InputError(path, pre.line, pre.value.column, "Pretrigger samples",
-                     fmt::format("{} is not a sample of a {}-sample record", pretrigger, samples));
-  rec.pretrigger_samples = static_cast<int>(pretrigger);
-  if (const auto it = keys.find("Trigger"); it != keys.end()) rec.trigger = it->second.value.text;
-
-  const Line& head = lines[header];
-  std::vector<Field> cols = split_fields(head.text, '\t');
-  drop_trailing_empty(cols);
-  std::vector<std::string> wanted = {cols[0].text};
-  for (const char* c : kEightChannels) wanted.push_back(c);
-  const std::map<std::string, int> index = header_columns(path, head, cols, wanted, true);
-  std::array<int, 8> channel{};
-  for (int c = 0; c < 8; ++c) channel[c] = index.at(kEightChannels[c]);
-
-  std::vector<double> t, res;
-  std::vector<int> line_of, col_of;
-  std::vector<double> values;
-  std::size_t end = lines.size();
-  while (end > header + 1 && blank_line(lines[end - 1].text)) --end;
-  for (std::size_t i = header + 1; i < end; ++i) {
-    const Line& l = lines[i];
-    if (blank_line(l.text)) throw InputError(path, l.number, 0, "", "blank line inside the data");
-    std::vector<Field> f = split_fields(l.text, '\t');
-    drop_trailing_empty(f);
-    if (f.size() != cols.size()) row_length_error(path, l, f, cols, head.number);
-    t.push_back(parse_number(path, l.number, f[0], cols[0].text, false));
-    res.push_back(printed_resolution(f[0].text));
-    line_of.push_back(l.number);
-    col_of.push_back(f[0].column);
-    for (int c = 0; c < 8; ++c) values.push_back(parse_number(path, l.number, f[channel[c]], kEightChannels[c], false));
-  }
-  const long long rows = static_cast<long long>(t.size());
-  if (rows != samples)
-    throw InputError(path, samples_entry.line, samples_entry.value.column, "Samples",
-                     rows < samples ? fmt::format("the header says {} samples but the record has only {} data rows "
-                                                  "(truncated record?)",
-                                                  samples, rows)
-                                    : fmt::format("the header says {} samples but the record has {} data rows", samples,
-                                                  rows));
-  check_uniform_time(path, t, res, line_of, col_of, cols[0].text, rec.sample_rate_hz);
-  const double t0 = t[rec.pretrigger_samples];
-  if (std::abs(t0) > 0.5 / rec.sample_rate_hz + 0.5 * res[rec.pretrigger_samples])
-    throw InputError(path, line_of[rec.pretrigger_samples], col_of[rec.pretrigger_samples], cols[0].text,
-                     fmt::format("the trigger sample (row {} after {} pretrigger samples) is at {} s, expected 0",
-                                 rec.pretrigger_samples + 1, rec.pretrigger_samples, t0));
-  rec.t_s = Eigen::Map<const Eigen::VectorXd>(t.data(), static_cast<Eigen::Index>(t.size()));
-  rec.data = Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, 8, Eigen::RowMajor>>(values.data(),
-                                                                                        static_cast<Eigen::Index>(rows), 8);
-  return rec;
-}
-
-// Scale from the unit of a BioWare column to SI, or nullopt if not known.
-std::optional<double> bioware_scale(int column, std::string_view unit) {
-  if (column < 3) {  // forces
-    if (unit == "N") return 1.0;
-  } else if (column < 6) {  // moments
-    for (std::string_view u : {"N.m", "Nm", "N m", "N*m", "N-m", "N·m"})
-      if (unit == u) return 1.0;
-  } else {  // centre of pressure
-    if (unit == "mm") return 1e-3;
-    if (unit == "m") return 1.0;
-  }
-  return std::nullopt;
-}
-
-ForceRecord read_bioware(const std::string& path, const std::vector<Line>& lines, std::size_t header,
-                         const ForcePlateSpec& plate) {
-  ForceRecord rec;
-  rec.layout = ForceLayout::Resultants;
-  bool have_rate = false;
-  for (std::size_t i = 0; i < header; ++i) {
-    const std::vector<Field> f = split_fields(lines[i].text, '\t');
-    if (!iequals_prefix(f[0].text, "Rate (Hz)")) continue;
-    const Field* value = nullptr;
-    for (std::size_t k = 1; k < f.size() && !value; ++k)
-      if (!f[k].text.empty()) value = &f[k];
-    if (!value) throw InputError(path, lines[i].number, 0, "Rate (Hz)", "no value after 'Rate (Hz):'");
-    rec.sample_rate_hz = parse_number(path, lines[i].number, *value, "Rate (Hz)", false);
-    if (std::abs(rec.sample_rate_hz - plate.sample_rate_hz) > 1e-6 * plate.sample_rate_hz)
-      throw InputError(path, lines[i].number, value->column, "Rate (Hz)",
-                       fmt::format("sample rate {} Hz disagrees with the manifest's forceplate.sample_rate_hz = {} Hz",
-                                   rec.sample_rate_hz, plate.sample_rate_hz));
-    have_rate = true;
-    break;
-  }
-  if (!have_rate) throw InputError(path, 0, 0, "Rate (Hz)", "missing header line 'Rate (Hz):<TAB>rate'");
-
-  const Line& head = lines[header];
-  std::vector<Field> cols = split_fields(head.text, '\t');
-  drop_trailing_empty(cols);
-  std::vector<std::string> wanted = {cols[0].text};
-  for (const char* c : kResultants) wanted.push_back(c);
-  const std::map<std::string, int> index = header_columns(path, head, cols, wanted, true);
-  std::array<int, 8> column{};
-  int last = 0;
-  for (int c = 0; c < 8; ++c) {
-    column[c] = index.at(kResultants[c]);
-    last = std::max(last, column[c]);
-  }
-
-  if (header + 1 >= lines.size())
-    throw InputError(path, head.number + 1, 0, "", "expected a units line after the column header");
-  const Line& units_line = lines[header + 1];
-  const std::vector<Field> units = split_fields(units_line.text, '\t');
-  std::array<double, 8> scale{};
-  for (int c = 0; c < 8; ++c) {
-    if (column[c] >= static_cast<int>(units.size()))
-      throw InputError(path, units_line.number, 0, kResultants[c],
-                       fmt::format("the units line has no unit for {}", kResultants[c]));
-    const Field& u = units[column[c]];
-    const std::optional<double> s = bioware_scale(c, u.text);
-    if (!s)
-      throw InputError(path, units_line.number, u.column, kResultants[c],
-                       fmt::format("unit '{}' for {} is not known (expected {})", u.text, kResultants[c],
-                                   c < 3 ? "N" : c < 6 ? "N.m" : "mm or m"));
-    scale[c] = *s;
-  }
-
-  std::vector<double> t, res;
-  std::vector<int> line_of, col_of;
-  std::vector<double> values;
-  std::size_t end = lines.size();
-  while (end > header + 2 && blank_line(lines[end - 1].text)) --end;
-  for (std::size_t i = header + 2; i < end; ++i) {
-    const Line& l = lines[i];
-    if (blank_line(l.text)) throw InputError(path, l.number, 0, "", "blank line inside the data");
-    std::vector<Field> f = split_fields(l.text, '\t');
-    drop_trailing_empty(f);
-    if (static_cast<int>(f.size()) <= last || f.size() > cols.size()) row_length_error(path, l, f, cols, head.number);
-    t.push_back(parse_number(path, l.number, f[0], cols[0].text, false));
-    res.push_back(printed_resolution(f[0].text));
-    line_of.push_back(l.number);
-    col_of.push_back(f[0].column);
-    for (int c = 0; c < 8; ++c)
-      values.push_back(scale[c] * parse_number(path, l.number, f[column[c]], kResultants[c], c >= 6));
-  }
-  if (t.empty()) throw InputError(path, head.number, 0, "", "no data rows after the column header and units line");
-  check_uniform_time(path, t, res, line_of, col_of, cols[0].text, rec.sample_rate_hz);
-  const int n = static_cast<int>(t.size());
-  rec.pretrigger_samples = std::min(trigger_sample_from_fraction(plate.pretrigger_fraction, n), n - 1);
-  const double t_trigger = t[rec.pretrigger_samples];
-  rec.t_s = Eigen::Map<const Eigen::VectorXd>(t.data(), n).array() - t_trigger;
-  rec.data = Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, 8, Eigen::RowMajor>>(values.data(), n, 8);
-  return rec;
-}
+// force.txt and force.c3d: capture/force_kistler.cpp, force_bioware.cpp, force_c3d.cpp.
 
 }  // namespace
 
@@ -1232,12 +1047,14 @@ int trigger_sample_from_fraction(double pretrigger_fraction, int n_samples) {
 }
 
 ForceRecord read_force(const std::string& path, const ForcePlateSpec& plate) {
-  const std::vector<Line> lines = read_lines(path);
+  const std::string ext = fs::path(path).extension().string();
+  if (iequals(ext, ".c3d")) return read_force_c3d(path, plate);
+  const std::vector<detail::Line> lines = detail::read_text_lines(path);
   for (std::size_t i = 0; i < lines.size(); ++i) {
-    const std::vector<Field> f = split_fields(lines[i].text, '\t');
+    const std::vector<detail::Field> f = detail::split_fields(lines[i].text, '\t');
     const std::string& first = f[0].text;
-    if (iequals(first, "Time(s)") || iequals(first, "Time (s)")) return read_eight_channel(path, lines, i, plate);
-    if (iequals_prefix(first, "abs time")) return read_bioware(path, lines, i, plate);
+    if (iequals(first, "Time(s)") || iequals(first, "Time (s)")) return detail::read_eight_channel(path, lines, i, plate);
+    if (iequals_prefix(first, "abs time")) return detail::read_bioware(path, lines, i, plate);
   }
   throw InputError(path, 0, 0, "",
                    "no column header: expected a line beginning 'Time(s)' (Kistler eight-channel) or 'abs time' "
@@ -1256,7 +1073,7 @@ Session read_session(const std::string& root) {
     TrialData trial;
     trial.spec = spec;
     trial.tracks = read_xypts((dir / spec.dir / "xypts.csv").string(), s.manifest.video);
-    trial.force = read_force((dir / spec.dir / "force.txt").string(), s.manifest.forceplate);
+    trial.force = read_force(find_force_file((dir / spec.dir).string()), s.manifest.forceplate);
     s.trials.push_back(std::move(trial));
   }
   return s;
@@ -1292,6 +1109,7 @@ void write_manifest(const std::string& path, const Manifest& m) {
                  toml_string(p.model), toml_float(p.sample_rate_hz), toml_float(p.trigger_threshold_n),
                  toml_float(p.pretrigger_fraction), toml_float(p.a_m), toml_float(p.b_m), toml_float(p.az0_m),
                  toml_float(p.mat_top_z_m));
+  if (p.plate != 1) fmt::format_to(out, "plate = {}\n", p.plate);
   for (const TrialSpec& t : m.trials)
     fmt::format_to(out, "\n[[trial]]\nid = {}\ndir = {}\n", toml_string(t.id), toml_string(t.dir));
   write_whole(path, s);
