@@ -389,6 +389,9 @@ Eigen::MatrixXd c3d_analog_scaled(const C3dFile& file, const std::vector<int>& c
     if (!std::isfinite(s))
       throw InputError(file.path, 0, 0, "ANALOG:SCALE", fmt::format("channel {}: {} is not finite", c + 1, s));
     out.col(static_cast<Eigen::Index>(k)) = (file.analog_stored.col(c).array() - o) * (s * g);
+    if (!out.col(static_cast<Eigen::Index>(k)).allFinite())
+      throw InputError(file.path, 0, 0, "ANALOG:SCALE",
+                       fmt::format("channel {}: scale {} x {} overflows to an infinite value", c + 1, s, g));
   }
   return out;
 }

@@ -221,7 +221,9 @@ BioWareExport parse_bioware(const std::string& path, const std::vector<Line>& li
     const Line& l = lines[i];
     if (blank_line(l.text)) throw InputError(path, l.number, 0, "", "blank line inside the data");
     std::vector<Field> f = split_fields(l.text, '\t');
-    drop_trailing_empty(f);
+    // Trailing empty fields beyond the header's columns are a trailing tab;
+    // empty fields within them are values (an unloaded plate's Ax Ay).
+    while (f.size() > cols.size() && f.back().text.empty()) f.pop_back();
     if (static_cast<int>(f.size()) <= last || f.size() > cols.size()) row_length_error(path, l, f, cols, head.number);
     t.push_back(parse_number(path, l.number, f[0], cols[0].text, false));
     res.push_back(printed_resolution(f[0].text));
