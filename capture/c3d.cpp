@@ -140,11 +140,12 @@ void read_parameters(const Reader& r, std::size_t start, std::size_t end, C3dFil
       if (p.type != -1 && p.type != 1 && p.type != 2 && p.type != 4)
         r.fail(field, fmt::format("parameter type {} (expected -1, 1, 2 or 4)", p.type));
       const int n_dims = r.u8(body + 1, field);
+      if (n_dims > 7) r.fail(field, fmt::format("{} dimensions (at most 7)", n_dims));
       std::size_t count = 1;
       for (int d = 0; d < n_dims; ++d) {
         const int dim = r.u8(body + 2 + d, field);
         p.dims.push_back(dim);
-        count *= static_cast<std::size_t>(dim);
+        count *= static_cast<std::size_t>(dim);  // <= 255^7: no overflow
       }
       const std::size_t data_at = body + 2 + n_dims;
       const std::size_t width = static_cast<std::size_t>(std::abs(p.type));
@@ -300,6 +301,7 @@ C3dFile parse_c3d(std::string_view bytes, const std::string& name) {
   const double scale = std::abs(out.point_scale);
   out.points.resize(out.n_frames, 4 * out.n_points);
   out.analog_stored.resize(static_cast<Eigen::Index>(out.n_frames) * out.analog_per_frame, out.n_analog_channels);
+  if (frame_bytes == 0) return out;  // no points and no analog channels: nothing to read
   for (int f = 0; f < out.n_frames; ++f) {
     std::size_t at = data_start + static_cast<std::size_t>(f) * frame_bytes;
     for (int p = 0; p < out.n_points; ++p) {

@@ -20,6 +20,7 @@
 #include "capture/io.h"
 #include "core/error.h"
 #include "forceplate/forceplate.h"
+#include "samples/generator/synth.h"
 
 namespace fs = std::filesystem;
 using namespace dropfit;
@@ -538,6 +539,73 @@ TEST(C3dSession, FindForceFile) {
   EXPECT_EQ(find_force_file(dir.path().string()), (dir.path() / "force.c3d").string());
   dir.write("force.txt", "x");
   EXPECT_THROW(find_force_file(dir.path().string()), InputError);
+}
+
+// A session whose trial holds force.c3d instead of force.txt: read_session
+// takes it, with the C3D's ORIGIN as the plate geometry, and the force plate
+// gives the same trial as from the text export.
+TEST(C3dSession, TrialWithForceC3d) {
+  synth::SynthOptions o;
+  o.impact_velocities_m_s = {5.0};
+  const synth::SyntheticSession syn = synth::make_session(o);
+  TempDir dir;
+  const fs::path root = dir.path() / "session";
+  write_session(root.string(), syn.session);
+  const Manifest& m = syn.session.manifest;
+  const ForceRecord& txt = syn.session.trials[0].force;
+  ASSERT_EQ(txt.layout, ForceLayout::EightChannel);
+
+  // The eight channels as a float C3D (1000 Hz analog, 10 per point frame),
+  // ORIGIN as BioWare writes it (az0 positive).
+  Spec s;
+  s.float_data = true;
+  s.point_rate_hz = m.forceplate.sample_rate_hz / 10.0;
+  s.n_points = 0;
+  s.n_analog = 8;
+  s.analog_per_frame = 10;
+  s.n_frames = static_cast<int>(txt.data.rows() / 10);
+  ASSERT_EQ(txt.data.rows() % 10, 0);
+  s.analog = txt.data;
+  s.points.resize(s.n_frames, 0);
+  s.groups = {{"POINT", {num("USED", 2, {}, {0}), num("RATE", 4, {}, {s.point_rate_hz})}},
+              {"ANALOG",
+               {num("USED", 2, {}, {8}), num("RATE", 4, {}, {m.forceplate.sample_rate_hz}),
+                num("GEN_SCALE", 4, {}, {1.0}), num("SCALE", 4, {8}, std::vector<double>(8, 1.0)),
+                num("OFFSET", 2, {8}, std::vector<double>(8, 0.0))}},
+              {"FORCE_PLATFORM",
+               {num("USED", 2, {}, {1}), num("TYPE", 2, {1}, {3}),
+                num("ORIGIN", 4, {3, 1}, {1e3 * m.forceplate.a_m, 1e3 * m.forceplate.b_m, -1e3 * m.forceplate.az0_m}),
+                num("CHANNEL", 2, {8, 1}, {1, 2, 3, 4, 5, 6, 7, 8})}}};
+  const fs::path trial_dir = root / m.trials[0].dir;
+  fs::remove(trial_dir / "force.txt");
+  dir.write((fs::path("session") / m.trials[0].dir / "force.c3d").string(), write_c3d(s));
+
+  const Session read = read_session(root.string());
+  const ForceRecord& c3d = read.trials[0].force;
+  ASSERT_EQ(c3d.data.rows(), txt.data.rows());
+  EXPECT_EQ(c3d.pretrigger_samples, txt.pretrigger_samples);
+  EXPECT_LT((c3d.t_s - txt.t_s).cwiseAbs().maxCoeff(), 1e-9);
+  // Channels stored as 32-bit floats: 6e-8 relative of at most ~10 kN.
+  EXPECT_LT((c3d.data - txt.data).cwiseAbs().maxCoeff(), 1e-3);
+  ASSERT_TRUE(c3d.plate_geometry_m.has_value());
+  EXPECT_NEAR((*c3d.plate_geometry_m)[2], m.forceplate.az0_m, 1e-7);
+
+  forceplate::ProcessOptions po;
+  po.pretrigger_samples = txt.pretrigger_samples;
+  po.sample_rate_hz = m.forceplate.sample_rate_hz;
+  po.trigger_threshold_n = m.forceplate.trigger_threshold_n;
+  const Eigen::Vector3d g = *c3d.plate_geometry_m;
+  const auto a = forceplate::process(forceplate::from_eight_channels(c3d.t_s, c3d.data, {g[0], g[1], g[2]}), po);
+  const auto b = forceplate::process(
+      forceplate::from_eight_channels(txt.t_s, txt.data, {m.forceplate.a_m, m.forceplate.b_m, m.forceplate.az0_m}),
+      po);
+  EXPECT_NEAR(a.peak_fz_n, b.peak_fz_n, 0.01);
+  EXPECT_NEAR(a.contact_time_s, b.contact_time_s, 1e-6);
+  EXPECT_NEAR(a.peak_fz_n, syn.truth.trials[0].peak_force_n, 0.05 * syn.truth.trials[0].peak_force_n);
+
+  // Both files: which one is meant is not known.
+  dir.write((fs::path("session") / m.trials[0].dir / "force.txt").string(), "x");
+  EXPECT_THROW(read_session(root.string()), InputError);
 }
 
 // ---------------------------------------------------------------------------

@@ -16,6 +16,7 @@
 #include "capture/io.h"
 #include "core/error.h"
 #include "forceplate/forceplate.h"
+#include "samples/generator/synth.h"
 
 namespace fs = std::filesystem;
 using namespace dropfit;
@@ -249,6 +250,25 @@ TEST(BioWareExport, WithoutMomentsNoCentreOfPressure) {
   Eigen::MatrixXd no_fz = cols;
   no_fz.col(2).setConstant(std::numeric_limits<double>::quiet_NaN());
   EXPECT_THROW(forceplate::from_resultant_columns(t, no_fz, 50.0, -0.04), Error);
+}
+
+// [forceplate] plate: written when not 1, read back, checked.
+TEST(BioWareManifest, PlateKey) {
+  synth::SynthOptions o;
+  o.impact_velocities_m_s = {5.0};
+  Manifest m = synth::make_session(o).session.manifest;
+  TempDir dir;
+  const std::string path = dir.write("session.toml", "");
+  EXPECT_EQ(m.forceplate.plate, 1);
+  m.forceplate.plate = 2;
+  write_manifest(path, m);
+  EXPECT_EQ(read_manifest(path).forceplate.plate, 2);
+  std::ifstream in(path);
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  text.replace(text.find("plate = 2"), 9, "plate = 0");
+  const std::string bad = dir.write("bad.toml", text);
+  const InputError e = input_error([&] { read_manifest(bad); });
+  EXPECT_EQ(e.field(), "forceplate.plate");
 }
 
 // ---------------------------------------------------------------------------
