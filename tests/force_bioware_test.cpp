@@ -9,6 +9,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -69,10 +70,10 @@ std::string utf16(const std::string& utf8, bool big_endian) {
     const auto c = static_cast<unsigned char>(utf8[i]);
     char32_t cp = c;
     int len = 1;
-    if (c >= 0xE0) {
+    if (c >= 0xE0 && i + 2 < utf8.size()) {
       cp = ((c & 0x0F) << 12) | ((utf8[i + 1] & 0x3F) << 6) | (utf8[i + 2] & 0x3F);
       len = 3;
-    } else if (c >= 0xC0) {
+    } else if (c >= 0xC0 && i + 1 < utf8.size()) {
       cp = ((c & 0x1F) << 6) | (utf8[i + 1] & 0x3F);
       len = 2;
     }
@@ -250,6 +251,42 @@ TEST(BioWareExport, WithoutMomentsNoCentreOfPressure) {
   Eigen::MatrixXd no_fz = cols;
   no_fz.col(2).setConstant(std::numeric_limits<double>::quiet_NaN());
   EXPECT_THROW(forceplate::from_resultant_columns(t, no_fz, 50.0, -0.04), Error);
+}
+
+// Mutated exports (bytes replaced, deleted, tabs and line ends inserted, in
+// UTF-8 and UTF-16): read or refused with an InputError, never anything else.
+TEST(BioWareExport, MutatedExportsReadOrRefused) {
+  TempDir dir;
+  std::mt19937 rng(5);
+  const std::string base = two_plate_export();
+  const char alphabet[] = "\t\r\n0123456789.-eNmxF \xFF\xFE";
+  int refused = 0, read = 0;
+  for (int trial = 0; trial < 400; ++trial) {
+    std::string s = base;
+    for (int k = 0; k < 1 + trial % 3; ++k) {
+      const std::size_t at = rng() % s.size();
+      const char c = alphabet[rng() % (sizeof(alphabet) - 1)];
+      switch (rng() % 3) {
+        case 0: s[at] = c; break;
+        case 1: s.erase(at, 1 + rng() % 4); break;
+        default: s.insert(at, 1, c);
+      }
+    }
+    if (trial % 5 == 0) s = utf16(s, trial % 10 == 0);
+    const std::string path = dir.write("m.txt", s);
+    try {
+      const BioWareExport ex = read_bioware_export(path);
+      ASSERT_GE(ex.n_plates, 1);
+      ASSERT_EQ(ex.plates[0].rows(), ex.abs_time_s.size());
+      ++read;
+    } catch (const InputError& e) {
+      EXPECT_EQ(e.file(), path);
+      ++refused;
+    }
+  }
+  // Both outcomes occur (a digit changed in a value still reads).
+  EXPECT_GT(refused, 50);
+  EXPECT_GT(read, 50);
 }
 
 // [forceplate] plate: written when not 1, read back, checked.
