@@ -30,7 +30,8 @@ namespace dropfit::capture {
 //   pretrigger_fraction, a_m, b_m, az0_m, mat_top_z_m}, and at least one
 //   [[trial]] with id and dir.
 // Optional (default): session.name (""), session.gravity_m_s2 (9.81),
-//   impactor.base_marker_height_m (0), forceplate.model (""),
+//   impactor.base_marker_height_m (0), forceplate.model (""), forceplate.plate
+//   (1: the plate of a several-plate BioWare or C3D export, an integer >= 1),
 //   video.image_origin ("top-left"), video.image_height_px (required with
 //   "bottom-left").
 // Checked: masses, lengths, thicknesses, rates, gravity, footprint, trigger
@@ -120,7 +121,9 @@ std::vector<int> read_offsets(const std::string& path, int n_cameras);
 // long as the calibration images were digitised the same way.
 MarkerTracks2D read_xypts(const std::string& path, const VideoSpec& video);
 
-// force.txt in either layout, told apart by the column header:
+// force.txt in either layout, told apart by the column header, or force.c3d
+// (a path ending in .c3d, any case: read_force_c3d of capture/force_io.h).
+// Text files may be UTF-8 or UTF-16 with a byte-order mark.
 // - Kistler eight-channel: key<TAB>value header lines ("Sample rate",
 //   "Samples", "Pretrigger samples" required; "Device", "Trigger" optional;
 //   other keys ignored), a blank line, the column header "Time(s)" then Fx12
@@ -128,16 +131,17 @@ MarkerTracks2D read_xypts(const std::string& path, const VideoSpec& video);
 //   error naming it; other columns are ignored), then exactly "Samples" data
 //   rows. t_s is the file's time column, which must read 0 (within half a
 //   sample) at row "Pretrigger samples": the trigger sample.
-// - BioWare resultants: free header lines, one of them "Rate (Hz):<TAB>R", a
-//   column header beginning "abs time" naming Fx Fy Fz Mx My Mz Ax Ay (any
-//   order, more may follow), one units line (forces N; moments N.m/Nm/N m;
-//   Ax, Ay mm or m, converted to m), then the data. The file has no trigger
-//   mark, so the trigger sample is taken from the manifest:
+// - BioWare resultants as they come (read_bioware_export in
+//   capture/force_io.h): any subset of Fx Fy Fz Mx My Mz Ax Ay that has Fz
+//   (no Fz: refused), several plates as repeated blocks (plate.plate picks
+//   one), header lines of any BioWare version. Columns the export lacks are
+//   NaN throughout in `data`. The file has no trigger mark, so the trigger
+//   sample is taken from the manifest:
 //   pretrigger_samples = trigger_sample_from_fraction(plate.pretrigger_fraction, n)
 //   and t_s[i] = abs_time[i] - abs_time[pretrigger_samples], i.e. t = 0 at
 //   the trigger sample as for the eight-channel layout. Ax, Ay may be NaN
-//   (centre of pressure undefined while unloaded); nothing else may.
-// For both: the sample rate must equal plate.sample_rate_hz (relative 1e-6);
+//   (centre of pressure undefined while unloaded).
+// For all: the sample rate must equal plate.sample_rate_hz (relative 1e-6);
 // time steps must be uniform (each step within a quarter sample plus the
 // printed time resolution of 1 / rate, and no drift over the record).
 ForceRecord read_force(const std::string& path, const ForcePlateSpec& plate);

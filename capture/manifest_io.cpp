@@ -306,7 +306,7 @@ class ManifestReader {
     const toml::table& plate = *table(root, "forceplate", true);
     check_keys(plate, "forceplate",
                {"model", "sample_rate_hz", "trigger_threshold_n", "pretrigger_fraction", "a_m", "b_m", "az0_m",
-                "mat_top_z_m"});
+                "mat_top_z_m", "plate"});
     m.forceplate.model = string(plate, "forceplate", "model", false).value_or("");
     m.forceplate.sample_rate_hz = *number(plate, "forceplate", "sample_rate_hz", Check::Positive, true);
     m.forceplate.trigger_threshold_n = *number(plate, "forceplate", "trigger_threshold_n", Check::Positive, true);
@@ -315,6 +315,7 @@ class ManifestReader {
     m.forceplate.b_m = *number(plate, "forceplate", "b_m", Check::Positive, true);
     m.forceplate.az0_m = *number(plate, "forceplate", "az0_m", Check::Finite, true);
     m.forceplate.mat_top_z_m = *number(plate, "forceplate", "mat_top_z_m", Check::Finite, true);
+    m.forceplate.plate = static_cast<int>(integer(plate, "forceplate", "plate", 1, false).value_or(1));
 
     const toml::array& trials = table_array(root, "", "trial");
     std::map<std::string, std::size_t> seen;
@@ -628,6 +629,7 @@ void write_manifest(const std::string& path, const Manifest& m) {
                  toml_string(p.model), toml_float(p.sample_rate_hz), toml_float(p.trigger_threshold_n),
                  toml_float(p.pretrigger_fraction), toml_float(p.a_m), toml_float(p.b_m), toml_float(p.az0_m),
                  toml_float(p.mat_top_z_m));
+  if (p.plate != 1) fmt::format_to(out, "plate = {}\n", p.plate);
   if (!m.calibration.dlt_coefficients.empty())
     fmt::format_to(out, "\n[calibration]\ndlt_coefficients = {}\n", toml_string(m.calibration.dlt_coefficients));
   for (const TrialSpec& t : m.trials)

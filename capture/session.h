@@ -52,6 +52,7 @@ struct ForcePlateSpec {
   double b_m = 0.200;
   double az0_m = -0.040;
   double mat_top_z_m = 0.205;  // undeformed mat top in the lab frame
+  int plate = 1;  // 1-based: the plate of a several-plate export (BioWare blocks, C3D FORCE_PLATFORM)
 };
 
 struct TrialSpec {
@@ -124,7 +125,11 @@ struct ForceRecord {
                                 // absolute times minus that of sample pretrigger_samples (BioWare)
   // EightChannel: columns Fx12 Fx34 Fy14 Fy23 Fz1 Fz2 Fz3 Fz4 in newtons.
   // Resultants: columns Fx Fy Fz (N) Mx My Mz (N m) Ax Ay (m, converted from mm).
+  // A column the export does not have (BioWare subsets, C3D TYPE 2's Ax Ay) is NaN throughout.
   Eigen::MatrixXd data;
+  // The plate's a, b, az0 (m) when the file gives them (C3D FORCE_PLATFORM:ORIGIN): they
+  // replace the manifest's forceplate.a_m, b_m, az0_m for this record (TYPE 2: a, b NaN).
+  std::optional<Eigen::Vector3d> plate_geometry_m;
 };
 
 struct TrialData {

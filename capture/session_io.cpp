@@ -11,6 +11,7 @@
 #include <set>
 #include <string_view>
 
+#include "capture/force_io.h"
 #include "capture/text_io.h"
 #include "core/error.h"
 
@@ -63,7 +64,7 @@ Session read_session(const std::string& root) {
     trial.tracks = read_xypts(trial.xypts_path, m.video);
     const std::string offsets = offsets_path(trial.xypts_path);
     if (exists_entry(offsets)) trial.frame_offsets = read_offsets(offsets, static_cast<int>(m.video.cameras.size()));
-    trial.force = read_force((dir / spec.dir / "force.txt").string(), m.forceplate);
+    trial.force = read_force(find_force_file((dir / spec.dir).string()), m.forceplate);
     s.trials.push_back(std::move(trial));
   }
   return s;

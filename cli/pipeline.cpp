@@ -96,11 +96,13 @@ forceplate::ProcessOptions force_options(const Manifest& manifest, const ForceRe
 }
 
 forceplate::Resultants raw_resultants(const Manifest& manifest, const ForceRecord& record) {
+  // A C3D's FORCE_PLATFORM:ORIGIN replaces the manifest's geometry.
+  const Eigen::Vector3d g = record.plate_geometry_m.value_or(
+      Eigen::Vector3d(manifest.forceplate.a_m, manifest.forceplate.b_m, manifest.forceplate.az0_m));
   if (record.layout == ForceLayout::EightChannel) {
-    return forceplate::from_eight_channels(record.t_s, record.data,
-                                           {manifest.forceplate.a_m, manifest.forceplate.b_m, manifest.forceplate.az0_m});
+    return forceplate::from_eight_channels(record.t_s, record.data, {g[0], g[1], g[2]});
   }
-  return forceplate::from_resultant_columns(record.t_s, record.data, 50.0, manifest.forceplate.az0_m);
+  return forceplate::from_resultant_columns(record.t_s, record.data, 50.0, g[2]);
 }
 
 TrialOutcome process_trial(const Manifest& manifest, const TrialData& trial,
