@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "capture/tracking.h"
+#include "capture/footage.h"
 #include "samples/generator/render.h"
 
 namespace {

@@ -623,8 +623,14 @@ std::string CalibrationResult::model() const {
 std::string CalibrationResult::report() const {
   std::string out = fmt::format("calibration ({}), {} cameras\n", model(), cameras.size());
   for (const auto& c : cameras) {
-    out += fmt::format("  {}: {} fit markers, reprojection RMS {:.2f} px", label_of(c.camera.name), c.n_fit_points,
-                       c.fit_rms_px);
+    if (c.n_fit_points == 0)  // given coefficients (given_calibration)
+      out += std::isnan(c.fit_rms_px)
+                 ? fmt::format("  {}: coefficients given, no frame markers seen", label_of(c.camera.name))
+                 : fmt::format("  {}: coefficients given, reprojection RMS {:.2f} px on the frame markers",
+                               label_of(c.camera.name), c.fit_rms_px);
+    else
+      out += fmt::format("  {}: {} fit markers, reprojection RMS {:.2f} px", label_of(c.camera.name),
+                         c.n_fit_points, c.fit_rms_px);
     if (c.camera.has_distortion())
       out += fmt::format(", k1 {:.4f} k2 {:.4f} p1 {:.5f} p2 {:.5f} k3 {:.4f}", c.camera.distortion[0],
                          c.camera.distortion[1], c.camera.distortion[2], c.camera.distortion[3],
@@ -632,7 +638,8 @@ std::string CalibrationResult::report() const {
     out += "\n";
   }
   if (check_points.empty()) {
-    out += "  check markers: none reconstructed\n";
+    out += check_unseen.empty() ? "  check markers: none, so the accuracy was not checked\n"
+                                : "  check markers: none reconstructed\n";
   } else {
     out += fmt::format("  check markers: {} reconstructed, RMS x {} y {} z {} mm, max {} mm\n", check_points.size(),
                        mm(check_rms_m.x()), mm(check_rms_m.y()), mm(check_rms_m.z()), mm(check_max_m));
@@ -657,6 +664,67 @@ std::string CalibrationResult::report() const {
                          mm(outlier_baseline_m));
   }
   return out;
+}
+
+CalibrationResult given_calibration(const std::vector<Camera>& cameras, const std::vector<Marker>& markers,
+                                    const std::vector<CameraView>& views) {
+  const int n_cameras = static_cast<int>(cameras.size());
+  if (n_cameras < 2)
+    throw Error(fmt::format("calibration needs two or more cameras to reconstruct points; {} given", n_cameras));
+  if (!views.empty() && static_cast<int>(views.size()) != n_cameras)
+    throw Error(fmt::format("{} camera views for {} cameras", views.size(), n_cameras));
+  const int n_markers = static_cast<int>(markers.size());
+  std::unordered_map<std::string, int> index;
+  for (int m = 0; m < n_markers; ++m)
+    if (!index.emplace(markers[m].id, m).second)
+      throw Error(fmt::format("calibration marker '{}' is listed twice", markers[m].id));
+  std::vector<std::vector<Eigen::Vector2d>> seen(
+      n_cameras, std::vector<Eigen::Vector2d>(n_markers, Eigen::Vector2d::Constant(kNaN)));
+  for (int c = 0; c < static_cast<int>(views.size()); ++c) {
+    for (const auto& [id, px] : views[c].observations) {
+      const auto it = index.find(id);
+      if (it == index.end())
+        throw Error(fmt::format("{}: observes marker '{}', which the calibration frame does not list",
+                                label_of(views[c].name), id));
+      if (px.allFinite()) seen[c][it->second] = px;
+    }
+  }
+  CalibrationResult result;
+  for (int c = 0; c < n_cameras; ++c) {
+    DltFit fit;
+    fit.camera = cameras[c];
+    double sum_sq = 0.0;
+    int n = 0;
+    for (int m = 0; m < n_markers; ++m) {
+      if (!seen[c][m].allFinite()) continue;
+      sum_sq += (seen[c][m] - cameras[c].project(markers[m].lab_m)).squaredNorm();
+      ++n;
+    }
+    fit.fit_rms_px = n > 0 ? std::sqrt(sum_sq / n) : kNaN;
+    result.cameras.push_back(std::move(fit));
+  }
+  std::vector<Eigen::Vector2d> px(n_cameras);
+  Eigen::Vector3d sum_sq = Eigen::Vector3d::Zero();
+  for (int m = 0; m < n_markers; ++m) {
+    if (!markers[m].is_check) continue;
+    int n_seeing = 0;
+    for (int c = 0; c < n_cameras; ++c) {
+      px[c] = seen[c][m];
+      n_seeing += px[c].allFinite() ? 1 : 0;
+    }
+    const Eigen::Vector3d error = triangulate(cameras, px, true).lab_m - markers[m].lab_m;
+    if (!error.allFinite()) {
+      result.check_unseen.push_back(markers[m].id);
+      continue;
+    }
+    result.check_points.push_back({markers[m].id, error, n_seeing});
+    sum_sq += error.cwiseAbs2();
+    const double largest = error.cwiseAbs().maxCoeff();
+    result.check_max_m = std::isnan(result.check_max_m) ? largest : std::max(result.check_max_m, largest);
+  }
+  if (!result.check_points.empty())
+    result.check_rms_m = (sum_sq / static_cast<double>(result.check_points.size())).cwiseSqrt();
+  return result;
 }
 
 }  // namespace dropfit::calibration

@@ -183,4 +183,16 @@ struct CalibrationResult {
 CalibrationResult calibrate(const std::vector<Marker>& markers, const std::vector<CameraView>& views,
                             const CalibrationOptions& options = {});
 
+// A calibration given as coefficients (easyWand, Argus, DLTdv), checked on
+// whatever frame markers the views show: the check markers are
+// triangulated with `cameras` and reported as calibrate() reports them;
+// each camera's fit_rms_px is the RMS reprojection distance of every frame
+// marker it sees (fit and check; NaN when it sees none) and n_fit_points is
+// 0 (nothing was fitted). No leave-one-out, no outliers. With no markers
+// the result carries the cameras only and says that accuracy was not
+// checked. `views` are empty or one per camera, in the same order. Throws
+// dropfit::Error for fewer than two cameras, duplicate or unknown marker ids.
+CalibrationResult given_calibration(const std::vector<Camera>& cameras, const std::vector<Marker>& markers,
+                                    const std::vector<CameraView>& views);
+
 }  // namespace dropfit::calibration

@@ -30,7 +30,8 @@ namespace dropfit::capture {
 //   pretrigger_fraction, a_m, b_m, az0_m, mat_top_z_m}, and at least one
 //   [[trial]] with id and dir.
 // Optional (default): session.name (""), session.gravity_m_s2 (9.81),
-//   impactor.base_marker_height_m (0), forceplate.model (""),
+//   impactor.base_marker_height_m (0), forceplate.model (""), forceplate.plate
+//   (1: the plate of a several-plate BioWare or C3D export, an integer >= 1),
 //   video.image_origin ("top-left"), video.image_height_px (required with
 //   "bottom-left").
 // Checked: masses, lengths, thicknesses, rates, gravity, footprint, trigger
@@ -64,11 +65,43 @@ std::vector<CalibrationMarker> read_frame_csv(const std::string& path);
 CalibrationImage read_camera_csv(const std::string& path, const std::string& camera,
                                  const std::vector<CalibrationMarker>& frame);
 
+// [calibration] dlt_coefficients: 11 rows (L1..L11) of comma- or
+// tab-separated numbers, one column per camera in video.cameras order, as
+// easyWand (*_dltCoefs.csv), Argus (*-dlt-coefs.csv) and DLTdv write them; a
+// first line whose first field is not a number is a header and skipped.
+// The coefficients are in video.image_origin; bottom-left ones are converted
+// to top-left (dlt_from_bottom_left). Errors name the row (field "L<k> of
+// <camera>"); a camera whose L1..L3 or L5..L7 are all zero is refused.
+std::vector<DltCoefficients> read_dlt_coefficients(const std::string& path, const VideoSpec& video);
+// The DLT of the same camera for image coordinates v' = image_height_px - v
+// (bottom-left <-> top-left; the map is its own inverse): L5..L8 become
+// H L9 - L5, H L10 - L6, H L11 - L7, H - L8.
+DltCoefficients dlt_from_bottom_left(const DltCoefficients& coefficients, double image_height_px);
+
+// The marker table of a trial folder: <dir>/xypts.csv when it exists, else
+// the one file whose name ends in "xypts.csv" (DLTdv and Argus prefix it
+// with the trial's name, e.g. trial1xypts.csv, trial1-xypts.csv). Two or
+// more such files: an InputError naming two of them. None: <dir>/xypts.csv
+// (whose reading then reports it missing).
+std::string find_xypts(const std::string& trial_dir);
+// DLTdv's offsets file beside a marker table: its path with the trailing
+// "xypts.csv" replaced by "offsets.csv".
+std::string offsets_path(const std::string& xypts_path);
+// offsets.csv: one integer frame offset per camera, either one row per
+// camera (one field each) or DLTdv 8's one column per camera and one row per
+// frame (then every row must be the same: offsets that change during a
+// trial are refused); an optional header line. Offsets beyond +-1e6 frames
+// are refused.
+std::vector<int> read_offsets(const std::string& path, int n_cameras);
+
 // xypts.csv in any of the three layouts, told apart by the header:
 //   DLTdv 8.3   ptK_camN_X, ptK_camN_Y   (K 1-based index into video.points)
 //   DLTdv 8.4+  NAME_camN_U, NAME_camN_V (NAME from video.points)
 //   Argus       NAME_cam_N_x, NAME_cam_N_y
-// N is the 1-based index into video.cameras. Columns may come in any order;
+// N is the 1-based index into video.cameras. In the DLTdv 8.4 and Argus
+// layouts a NAME that video.points does not list but reads ptK (DLTdv's and
+// Argus's default names) is video.points[K-1]. The file is comma-separated,
+// or tab-separated when its header line has tabs and no comma. Columns may come in any order;
 // one file uses one layout. The result is in the DLTdv column order of
 // MarkerTracks2D (points and cameras in manifest order). An empty field or
 // NaN (any case) is a missing measurement and stays NaN, never 0.
@@ -88,7 +121,9 @@ CalibrationImage read_camera_csv(const std::string& path, const std::string& cam
 // long as the calibration images were digitised the same way.
 MarkerTracks2D read_xypts(const std::string& path, const VideoSpec& video);
 
-// force.txt in either layout, told apart by the column header:
+// force.txt in either layout, told apart by the column header, or force.c3d
+// (a path ending in .c3d, any case: read_force_c3d of capture/force_io.h).
+// Text files may be UTF-8 or UTF-16 with a byte-order mark.
 // - Kistler eight-channel: key<TAB>value header lines ("Sample rate",
 //   "Samples", "Pretrigger samples" required; "Device", "Trigger" optional;
 //   other keys ignored), a blank line, the column header "Time(s)" then Fx12
@@ -96,16 +131,17 @@ MarkerTracks2D read_xypts(const std::string& path, const VideoSpec& video);
 //   error naming it; other columns are ignored), then exactly "Samples" data
 //   rows. t_s is the file's time column, which must read 0 (within half a
 //   sample) at row "Pretrigger samples": the trigger sample.
-// - BioWare resultants: free header lines, one of them "Rate (Hz):<TAB>R", a
-//   column header beginning "abs time" naming Fx Fy Fz Mx My Mz Ax Ay (any
-//   order, more may follow), one units line (forces N; moments N.m/Nm/N m;
-//   Ax, Ay mm or m, converted to m), then the data. The file has no trigger
-//   mark, so the trigger sample is taken from the manifest:
+// - BioWare resultants as they come (read_bioware_export in
+//   capture/force_io.h): any subset of Fx Fy Fz Mx My Mz Ax Ay that has Fz
+//   (no Fz: refused), several plates as repeated blocks (plate.plate picks
+//   one), header lines of any BioWare version. Columns the export lacks are
+//   NaN throughout in `data`. The file has no trigger mark, so the trigger
+//   sample is taken from the manifest:
 //   pretrigger_samples = trigger_sample_from_fraction(plate.pretrigger_fraction, n)
 //   and t_s[i] = abs_time[i] - abs_time[pretrigger_samples], i.e. t = 0 at
 //   the trigger sample as for the eight-channel layout. Ax, Ay may be NaN
-//   (centre of pressure undefined while unloaded); nothing else may.
-// For both: the sample rate must equal plate.sample_rate_hz (relative 1e-6);
+//   (centre of pressure undefined while unloaded).
+// For all: the sample rate must equal plate.sample_rate_hz (relative 1e-6);
 // time steps must be uniform (each step within a quarter sample plus the
 // printed time resolution of 1 / rate, and no drift over the record).
 ForceRecord read_force(const std::string& path, const ForcePlateSpec& plate);
@@ -116,9 +152,17 @@ int trigger_sample_from_fraction(double pretrigger_fraction, int n_samples);
 
 // The whole session folder: session.toml, calibration/frame.csv,
 // calibration/<camera>.csv for each manifest camera (images in manifest
-// order), and each trial's <dir>/xypts.csv and <dir>/force.txt. A missing
-// file is an InputError naming it. Reads only; never writes.
+// order), and each trial's marker table (find_xypts) and <dir>/force.txt.
+// With [calibration] dlt_coefficients the coefficients are read into
+// Session::dlt_coefficients and frame.csv is optional (absent: no frame, no
+// images); with frame.csv present a camera without its <camera>.csv saw
+// none of the markers. DLTdv's offsets.csv beside a marker table is read
+// into TrialData::frame_offsets. A missing file is an InputError naming it.
+// Reads only; never writes.
 Session read_session(const std::string& root);
+// The calibration part of read_session alone: fills session.frame, .images
+// and .dlt_coefficients from the folder `root` for session.manifest.
+void read_session_calibration(const std::string& root, Session& session);
 
 // Writers (top-left origin, DLTdv 8.3 layout unless asked otherwise).
 // Formats: metres and other manifest values at full precision (shortest

@@ -52,11 +52,19 @@ struct ForcePlateSpec {
   double b_m = 0.200;
   double az0_m = -0.040;
   double mat_top_z_m = 0.205;  // undeformed mat top in the lab frame
+  int plate = 1;  // 1-based: the plate of a several-plate export (BioWare blocks, C3D FORCE_PLATFORM)
 };
 
 struct TrialSpec {
   std::string id;
   std::string dir;  // relative to the session folder
+};
+
+// [calibration]: an existing calibration instead of a frame (version 2).
+struct CalibrationSpec {
+  // Relative to the session folder; empty: calibrate from
+  // calibration/frame.csv and camN.csv.
+  std::string dlt_coefficients;
 };
 
 struct Manifest {
@@ -67,6 +75,7 @@ struct Manifest {
   VideoSpec video;
   ForcePlateSpec forceplate;
   std::vector<TrialSpec> trials;
+  CalibrationSpec calibration;
 };
 
 // calibration/frame.csv
@@ -116,20 +125,39 @@ struct ForceRecord {
                                 // absolute times minus that of sample pretrigger_samples (BioWare)
   // EightChannel: columns Fx12 Fx34 Fy14 Fy23 Fz1 Fz2 Fz3 Fz4 in newtons.
   // Resultants: columns Fx Fy Fz (N) Mx My Mz (N m) Ax Ay (m, converted from mm).
+  // A column the export does not have (BioWare subsets, C3D TYPE 2's Ax Ay) is NaN throughout.
   Eigen::MatrixXd data;
+  // The plate's a, b, az0 (m) when the file gives them (C3D FORCE_PLATFORM:ORIGIN): they
+  // replace the manifest's forceplate.a_m, b_m, az0_m for this record (TYPE 2: a, b NaN).
+  std::optional<Eigen::Vector3d> plate_geometry_m;
 };
 
 struct TrialData {
   TrialSpec spec;
   MarkerTracks2D tracks;
   ForceRecord force;
+  std::string xypts_path;  // the marker table read (xypts.csv or a prefixed *xypts.csv)
+  // DLTdv's offsets.csv beside the marker table, one per camera (empty when
+  // absent): row r of camera c was digitised in that camera's video frame
+  // r + offset. DLTdv writes its rows already aligned, so the tracks are not
+  // shifted; the offsets say which video frame each row came from.
+  std::vector<int> frame_offsets;
 };
+
+// 11 DLT coefficients L1..L11 of one camera, top-left image origin.
+using DltCoefficients = Eigen::Matrix<double, 11, 1>;
 
 struct Session {
   std::string root;  // folder it was read from
   Manifest manifest;
+  // Empty when the manifest gives DLT coefficients and the session has no
+  // calibration/frame.csv (nothing to check them with).
   std::vector<CalibrationMarker> frame;
-  std::vector<CalibrationImage> images;  // one per camera, in manifest order
+  std::vector<CalibrationImage> images;  // one per camera, in manifest order (empty with frame)
+  // From [calibration] dlt_coefficients, converted to the top-left origin:
+  // one per camera in manifest order; empty when the session is calibrated
+  // from its frame.
+  std::vector<DltCoefficients> dlt_coefficients;
   std::vector<TrialData> trials;
 };
 

@@ -29,8 +29,11 @@
 //
 // Image coordinates: pixels, origin at the top-left pixel corner, u to the
 // right, v downwards; pixel (i, j) (column i, row j) covers [i, i+1) x
-// [j, j+1), so its centre is (i + 0.5, j + 0.5). Frames are numbered from 0
-// in the order read: frame k is row k of xypts.csv.
+// [j, j+1), so its centre is (i + 0.5, j + 0.5). MarkerTracker numbers
+// frames from 0 in the order given; footage whose file names number its
+// frames from N (frame_00399.png) is tracked by track_footage
+// (capture/footage.h), whose rows and seed frames are the file names'
+// numbers: frame k is row k of xypts.csv.
 //
 // Seed file (CSV, one row per point, header required):
 //
@@ -226,52 +229,16 @@ class MarkerTracker {
 // are left untouched. This is how per-camera runs merge into one xypts.csv.
 void merge_camera_tracks(MarkerTracks2D& all, const MarkerTracks2D& camera_tracks);
 
-// ---- Reading footage and seeds (the I/O edge) -------------------------------
-
-// The image files of a sequence folder (PNG or TIFF), in frame order: sorted
-// by the last number in the file name. Throws dropfit::InputError naming the
-// folder when it is missing or holds no frames, when it mixes differently
-// named sequences, or when a frame number is skipped or repeated (a missing
-// frame would shift every later frame out of step with the other camera).
-std::vector<std::string> list_frame_files(const std::string& folder);
-
-// One image as 8-bit grey (colour converted to luma; 16-bit scaled by its
-// bit depth, see FrameSource). Throws dropfit::InputError when unreadable.
-Image8 read_image8(const std::string& path);
-
-// One camera's frames, read one at a time: a folder of PNG/TIFF images
-// (list_frame_files) or a video file OpenCV can open. 16-bit frames are
-// scaled to 8 bits by the bit depth seen in the first frame (12-bit data
-// stored in 16-bit words: divided by 16), the same for the whole sequence.
-class FrameSource {
- public:
-  // Throws dropfit::InputError naming the path when it cannot be opened.
-  explicit FrameSource(const std::string& path);
-  ~FrameSource();
-  FrameSource(FrameSource&&) noexcept;
-  FrameSource& operator=(FrameSource&&) noexcept;
-
-  // Frame count: exact for a sequence, the container's claim for a video
-  // (-1 when it does not say).
-  int size() const;
-  // The next frame, false at the end. Throws dropfit::InputError naming the
-  // file (or the video and frame) when a frame cannot be decoded or changes size.
-  bool next(Image8& frame);
-  int frames_read() const;
-  const std::string& path() const;
-
- private:
-  struct Impl;
-  std::unique_ptr<Impl> impl_;
-};
+// ---- Seeds (the I/O edge; footage is read by capture/footage.h) -------------
 
 // The seed file (format at the top). Throws dropfit::InputError naming the
 // file, line and field on a malformed row, an unknown point or a repeated one.
 std::vector<Seed> read_seed_csv(const std::string& path, const std::vector<std::string>& points);
 void write_seed_csv(const std::string& path, const std::vector<Seed>& seeds);
 
-// Reads every frame of `frames` into `tracker` (progress shown when given).
-// Returns the tracker's result.
-TrackingResult track_frames(FrameSource& frames, MarkerTracker& tracker, Progress* progress = nullptr);
+// A camera's result with its rows renumbered from `first_frame`: rows
+// 0..first_frame-1 are prepended as NaN (flag BeforeSeed) and the warnings'
+// frames shifted, so that row k is the footage's frame k.
+TrackingResult shift_frames(TrackingResult result, int first_frame);
 
 }  // namespace dropfit::capture

@@ -31,11 +31,7 @@ void add_calibrate(CLI::App& app, CommandContext& /*ctx*/) {
     Session session;
     session.root = args->session;
     session.manifest = manifest;
-    session.frame = capture::read_frame_csv((root / "calibration" / "frame.csv").string());
-    for (const auto& camera : manifest.video.cameras) {
-      session.images.push_back(
-          capture::read_camera_csv((root / "calibration" / (camera + ".csv")).string(), camera, session.frame));
-    }
+    capture::read_session_calibration(args->session, session);
     // By default the camera model every later stage uses: outliers and lens
     // distortion decided by cross-validation on every marker.
     calibration::CalibrationResult result;

@@ -36,6 +36,14 @@ std::vector<calibration::CameraView> camera_views(const std::vector<CalibrationI
 }
 
 diagnosis::CalibrationDiagnosis choose_calibration(const Session& session) {
+  if (!session.dlt_coefficients.empty()) {
+    // A wand calibration's coefficients: nothing to choose; the frame's check
+    // markers, when there is a frame, report its accuracy.
+    diagnosis::CalibrationDiagnosis given;
+    given.before = given.after = calibrate_session(session, calibration::CalibrationOptions{});
+    given.notes.push_back("calibration: DLT coefficients given in the manifest; the camera model is not re-chosen");
+    return given;
+  }
   return diagnosis::diagnose_calibration(calibration_markers(session.frame), camera_views(session.images));
 }
 
@@ -43,6 +51,17 @@ calibration::CalibrationResult calibrate_session(const Session& session) { retur
 
 calibration::CalibrationResult calibrate_session(const Session& session,
                                                  const calibration::CalibrationOptions& options) {
+  // Coefficients given in the manifest ([calibration] dlt_coefficients):
+  // used as they are, checked on the frame's check markers when there is one.
+  if (!session.dlt_coefficients.empty()) {
+    std::vector<calibration::Camera> cameras;
+    for (std::size_t c = 0; c < session.dlt_coefficients.size(); ++c) {
+      calibration::Camera& camera = cameras.emplace_back();
+      camera.name = session.manifest.video.cameras[c];
+      camera.dlt = session.dlt_coefficients[c];
+    }
+    return calibration::given_calibration(cameras, calibration_markers(session.frame), camera_views(session.images));
+  }
   try {
     return calibration::calibrate(calibration_markers(session.frame), camera_views(session.images), options);
   } catch (const InputError&) {
@@ -105,11 +124,13 @@ forceplate::ProcessOptions force_options(const Manifest& manifest, const ForceRe
 }
 
 forceplate::Resultants raw_resultants(const Manifest& manifest, const ForceRecord& record) {
+  // A C3D's FORCE_PLATFORM:ORIGIN replaces the manifest's geometry.
+  const Eigen::Vector3d g = record.plate_geometry_m.value_or(
+      Eigen::Vector3d(manifest.forceplate.a_m, manifest.forceplate.b_m, manifest.forceplate.az0_m));
   if (record.layout == ForceLayout::EightChannel) {
-    return forceplate::from_eight_channels(record.t_s, record.data,
-                                           {manifest.forceplate.a_m, manifest.forceplate.b_m, manifest.forceplate.az0_m});
+    return forceplate::from_eight_channels(record.t_s, record.data, {g[0], g[1], g[2]});
   }
-  return forceplate::from_resultant_columns(record.t_s, record.data, 50.0, manifest.forceplate.az0_m);
+  return forceplate::from_resultant_columns(record.t_s, record.data, 50.0, g[2]);
 }
 
 TrialOutcome process_trial(const Manifest& manifest, const TrialData& trial,

@@ -3,7 +3,10 @@
 //
 // Finds the markers in each camera's footage (a folder of PNG/TIFF frames or
 // a video file) and writes the trial's xypts.csv (DLTdv layout, all the
-// manifest's cameras; cameras not tracked in this run are NaN).
+// manifest's cameras; cameras not tracked in this run are NaN). A
+// sequence's frames are numbered by their file names (frame_00399.png is
+// frame and row 399; rows before the first file are NaN), and seed frames
+// use those numbers.
 //
 // Merging cameras: give every camera in one run (repeat --camera, --frames
 // and --seed in the same order), or track one camera per run with --merge,
@@ -15,8 +18,9 @@
 // cameras with each point's approximate lab position in its first frame
 // (point,frame,x_m,y_m,z_m), projected into each camera through a DLT fitted
 // to the session's calibration (calibration/frame.csv fit markers and
-// calibration/CAMERA.csv); the seed then snaps to the marker within
-// --seed-radius px of the projection.
+// calibration/CAMERA.csv, or the manifest's [calibration] dlt_coefficients);
+// the seed then snaps to the marker within --seed-radius px of the
+// projection.
 #include <fmt/format.h>
 
 #include <filesystem>
@@ -26,6 +30,7 @@
 
 #include "calibration/calibration.h"
 #include "capture/io.h"
+#include "capture/footage.h"
 #include "capture/tracking.h"
 #include "cli/command.h"
 #include "core/error.h"
@@ -99,18 +104,29 @@ std::vector<LabSeed> read_lab_seeds(const std::string& path, const std::vector<s
 
 // The lab seeds projected into one camera through a DLT fitted to the
 // session's calibration files.
-std::vector<capture::Seed> project_lab_seeds(const std::string& session, const std::string& camera,
-                                             const std::string& lab_path, const std::vector<LabSeed>& lab) {
+std::vector<capture::Seed> project_lab_seeds(const std::string& session, const Manifest& manifest,
+                                             const std::string& camera, const std::string& lab_path,
+                                             const std::vector<LabSeed>& lab) {
   const fs::path root(session);
-  const auto frame = capture::read_frame_csv((root / "calibration" / "frame.csv").string());
-  const auto image = capture::read_camera_csv((root / "calibration" / (camera + ".csv")).string(), camera, frame);
-  std::vector<calibration::Correspondence> fit;
-  for (const auto& obs : image.observations)
-    for (const auto& m : frame)
-      if (m.id == obs.id && m.role == MarkerRole::Fit) fit.push_back({m.id, m.lab_m, obs.image_px});
-  const calibration::DltFit dlt = calibration::fit_dlt(camera, fit);
+  calibration::Camera projector;
+  if (!manifest.calibration.dlt_coefficients.empty()) {
+    // A wand calibration: the given coefficients.
+    const auto given =
+        capture::read_dlt_coefficients((root / manifest.calibration.dlt_coefficients).string(), manifest.video);
+    const auto& cams = manifest.video.cameras;
+    projector.name = camera;
+    projector.dlt = given[std::find(cams.begin(), cams.end(), camera) - cams.begin()];
+  } else {
+    const auto frame = capture::read_frame_csv((root / "calibration" / "frame.csv").string());
+    const auto image = capture::read_camera_csv((root / "calibration" / (camera + ".csv")).string(), camera, frame);
+    std::vector<calibration::Correspondence> fit;
+    for (const auto& obs : image.observations)
+      for (const auto& m : frame)
+        if (m.id == obs.id && m.role == MarkerRole::Fit) fit.push_back({m.id, m.lab_m, obs.image_px});
+    projector = calibration::fit_dlt(camera, fit).camera;
+  }
   std::vector<capture::Seed> seeds;
-  for (const auto& s : lab) seeds.push_back({s.point, s.frame, dlt.camera.project(s.lab_m), lab_path, s.line});
+  for (const auto& s : lab) seeds.push_back({s.point, s.frame, projector.project(s.lab_m), lab_path, s.line});
   return seeds;
 }
 
@@ -209,10 +225,11 @@ void add_track(CLI::App& app, CommandContext& /*ctx*/) {
     for (std::size_t i = 0; i < n; ++i) {
       const std::string& camera = args->cameras[i];
       const auto seeds = lab.empty() ? capture::read_seed_csv(args->seeds[i], video.points)
-                                     : project_lab_seeds(args->session, camera, args->seed_lab, lab);
+                                     : project_lab_seeds(args->session, manifest, camera, args->seed_lab, lab);
       capture::FrameSource frames(args->frames[i]);
-      capture::MarkerTracker tracker(camera, video.points, seeds, options);
-      const capture::TrackingResult result = capture::track_frames(frames, tracker, &progress);
+      // Rows and seed frames are the footage's own frame numbers.
+      const capture::TrackingResult result =
+          capture::track_footage(frames, camera, video.points, seeds, options, &progress);
       if (video.image_origin == ImageOrigin::BottomLeft && video.image_height_px &&
           std::abs(*video.image_height_px - result.image_height_px) > 0.5)
         throw InputError(manifest_path, 0, 0, "video.image_height_px",

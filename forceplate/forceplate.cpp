@@ -280,8 +280,17 @@ Resultants from_resultant_columns(const Eigen::VectorXd& t_s, const Eigen::Matri
     throw Error(fmt::format("force record: {} times for {} samples", t_s.size(), columns.rows()));
   }
   static const std::vector<std::string> names{"Fx", "Fy", "Fz", "Mx", "My", "Mz"};
-  check_no_nan(columns, 6, names);
   Resultants r;
+  std::vector<int> present;
+  for (int c = 0; c < 6; ++c) {
+    if (columns.rows() > 0 && columns.col(c).array().isNaN().all()) {
+      if (c == 2) throw Error("force record: no Fz: the ground reaction force is not in the record");
+      r.absent.push_back(names[c]);
+    } else {
+      present.push_back(c);
+    }
+  }
+  for (int c : present) check_no_nan(columns.col(c), 1, {names[c]});
   r.t_s = t_s;
   r.f_n = columns.leftCols(3);
   r.m_n_m = columns.middleCols(3, 3);
@@ -289,9 +298,17 @@ Resultants from_resultant_columns(const Eigen::VectorXd& t_s, const Eigen::Matri
   for (Eigen::Index i = 0; i < columns.rows(); ++i) {
     if (!(std::abs(r.f_n(i, 2)) >= cop_min_fz_n)) r.cop_m.row(i).setConstant(kNaN);
   }
-  r.az0_m = az0_m;
-  r.channels_n = columns.leftCols(6);
-  r.channel_names = names;
+  auto is_absent = [&](const char* name) { return std::find(r.absent.begin(), r.absent.end(), name) != r.absent.end(); };
+  const bool moments_cop = !is_absent("Fx") && !is_absent("Fy") && !is_absent("Mx") && !is_absent("My");
+  const bool export_cop = !columns.col(6).array().isNaN().all() || !columns.col(7).array().isNaN().all();
+  r.az0_m = moments_cop ? az0_m : kNaN;
+  if (!moments_cop && !export_cop)
+    r.cop_unavailable = "the record has neither Fx Fy Mx My nor Ax Ay: no centre of pressure";
+  r.channels_n.resize(columns.rows(), static_cast<Eigen::Index>(present.size()));
+  for (std::size_t k = 0; k < present.size(); ++k) {
+    r.channels_n.col(static_cast<Eigen::Index>(k)) = columns.col(present[k]);
+    r.channel_names.push_back(names[present[k]]);
+  }
   return r;
 }
 
@@ -302,11 +319,17 @@ ForceTrial process(const Resultants& raw, const ProcessOptions& options) {
     throw Error(fmt::format("force record: malformed resultants ({} samples)", n_rows));
   }
   const int n = static_cast<int>(n_rows);
+  auto is_absent = [&](int c) {
+    static const char* const names[6] = {"Fx", "Fy", "Fz", "Mx", "My", "Mz"};
+    return std::find(raw.absent.begin(), raw.absent.end(), names[c]) != raw.absent.end();
+  };
+  if (is_absent(2)) throw Error("force record: no Fz: the ground reaction force is not in the record");
   {
-    std::vector<std::string> names{"Fx", "Fy", "Fz"};
-    check_no_nan(raw.f_n, 3, names);
-    names = {"Mx", "My", "Mz"};
-    check_no_nan(raw.m_n_m, 3, names);
+    static const std::vector<std::string> names{"Fx", "Fy", "Fz", "Mx", "My", "Mz"};
+    for (int c = 0; c < 6; ++c) {
+      if (is_absent(c)) continue;
+      check_no_nan(c < 3 ? raw.f_n.col(c) : raw.m_n_m.col(c - 3), 1, {names[c]});
+    }
   }
   for (int i = 1; i < n; ++i) {
     if (!(raw.t_s[i] > raw.t_s[i - 1])) {
@@ -343,6 +366,10 @@ ForceTrial process(const Resultants& raw, const ProcessOptions& options) {
   for (int pass = 0; pass < 2; ++pass) {
     // Zero offset and noise from the quiet part [0, quiet_end).
     for (int c = 0; c < 6; ++c) {
+      if (is_absent(c)) {
+        out.offset[c] = kNaN;  // not measured: stays NaN
+        continue;
+      }
       const Eigen::VectorXd col = c < 3 ? raw.f_n.col(c).head(quiet_end) : raw.m_n_m.col(c - 3).head(quiet_end);
       const RobustLevel level = robust_level(col);
       out.offset[c] = level.mean;
@@ -446,6 +473,10 @@ ForceTrial process(const Resultants& raw, const ProcessOptions& options) {
   out.plate.az0_m = raw.az0_m;
   out.plate.channels_n = raw.channels_n;
   out.plate.channel_names = raw.channel_names;
+  out.plate.absent = raw.absent;
+  out.plate.cop_unavailable = raw.cop_unavailable;
+  out.absent = raw.absent;
+  out.cop_unavailable = raw.cop_unavailable;
   return out;
 }
 
@@ -454,7 +485,9 @@ std::string ForceTrial::report() const {
       "force: offset Fz {:.2f} N (noise SD {:.2f} N over {} quiet samples); trigger crossing {:+.2f} ms; "
       "contact {:+.2f} ms; peak {:.1f} N at {:+.2f} ms ({:.2f} ms after contact); end of contact {}{:.2f} ms",
       offset[2], noise_n, quiet_samples, 1e3 * trigger_time_s, 1e3 * contact_time_s, peak_fz_n, 1e3 * peak_time_s,
-      1e3 * time_to_peak_s, end_found ? "" : "not found, record ends at ", 1e3 * end_time_s);
+      1e3 * time_to_peak_s, end_found ? "" : "not found, record ends at ", 1e3 * end_time_s) +
+         (absent.empty() ? std::string() : fmt::format("; not in the record: {}", fmt::join(absent, " "))) +
+         (cop_unavailable.empty() ? std::string() : "; " + cop_unavailable);
 }
 
 }  // namespace dropfit::forceplate

@@ -47,6 +47,11 @@ struct Resultants {
   // check: the eight channels, or Fx Fy Fz Mx My Mz for BioWare records.
   Eigen::MatrixXd channels_n;
   std::vector<std::string> channel_names;
+  // Resultant channels the record does not have (a BioWare export of a
+  // subset, e.g. Fx Fy Fz only): NaN throughout in f_n / m_n_m, never zero.
+  std::vector<std::string> absent;
+  // Why there is no centre of pressure (cop_m NaN throughout); empty when there is one.
+  std::string cop_unavailable;
 };
 
 // Names of the eight channels, in column order.
@@ -67,7 +72,12 @@ Resultants from_eight_channels(const Eigen::VectorXd& t_s, const Eigen::MatrixXd
 // columns n x 8 (Fx Fy Fz in N, Mx My Mz in N m, Ax Ay in m), extra columns
 // ignored. Ax Ay are kept where |Fz| >= cop_min_fz_n (NaN elsewhere); pass the
 // plate's az0 to have process() recompute them from the zeroed resultants.
-// Throws dropfit::Error on too few columns or a NaN in Fx..Mz.
+// A column of Fx Fy Mx My Mz that is NaN throughout is a channel the export
+// does not have: listed in `absent`, left NaN (never zero). Without Fx Fy Mx
+// My the centre of pressure cannot be recomputed, so az0 is ignored and the
+// export's own Ax Ay kept; without those too there is none (cop_unavailable
+// says why). Throws dropfit::Error on too few columns, Fz absent, or a NaN
+// in a present channel of Fx..Mz.
 Resultants from_resultant_columns(const Eigen::VectorXd& t_s, const Eigen::MatrixXd& columns,
                                   double cop_min_fz_n = 50.0,
                                   double az0_m = std::numeric_limits<double>::quiet_NaN());
@@ -109,13 +119,16 @@ struct ForceTrial {
   double end_time_s = 0.0;       // Fz back within the noise band after the peak (interpolated)
   int end_index = 0;             // first sample at or after end_time_s (n - 1 if never)
   bool end_found = false;        // false when Fz never returned to zero within the record
+  std::vector<std::string> absent;  // channels the record does not have (Resultants::absent)
+  std::string cop_unavailable;      // why there is no centre of pressure; empty when there is one
 
   std::string report() const;
 };
 
 // Zeroes, finds the trigger crossing, the contact onset, the peak and the end
-// of contact (methods in forceplate.cpp's comments). Throws dropfit::Error
-// when a force or moment is NaN, a channel is saturated, the pre-trigger part
+// of contact (methods in forceplate.cpp's comments). Channels in raw.absent
+// stay NaN (offset NaN). Throws dropfit::Error when Fz is absent, a present
+// force or moment is NaN, a channel is saturated, the pre-trigger part
 // is too short for a zero offset, there is no trigger crossing, or the
 // crossing is far from the declared trigger sample.
 ForceTrial process(const Resultants& raw, const ProcessOptions& options);

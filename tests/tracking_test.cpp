@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "capture/io.h"
+#include "capture/footage.h"
 #include "capture/tracking.h"
 #include "core/error.h"
 #include "calibration/calibration.h"
@@ -778,6 +779,68 @@ TEST(EndToEnd, ImpactVelocityFromTrackedFootageWithinTwoCentimetresPerSecond) {
     RecordProperty("impact_velocity_error_m_s_" + names[k], std::to_string(v_fit - v_true));
     EXPECT_NEAR(v_fit, v_true, 0.02) << names[k];
     EXPECT_NEAR(2.0 * coef(2), -g, 0.5) << names[k];
+  }
+}
+
+}  // namespace
+}  // namespace dropfit
+
+namespace dropfit {
+namespace {
+
+// Footage numbered by its file names (shared/spec/session-format.md,
+// "Footage"): a sequence exported from frame 399 on fills rows from 399.
+TEST(FrameFiles, NumberInTheFileNameIsTheFrame) {
+  EXPECT_EQ(capture::frame_number_of("frame_00399"), 399);
+  EXPECT_EQ(capture::frame_number_of("C001H001S0001000399"), 399);  // Photron: camera, head, session, frame
+  EXPECT_EQ(capture::frame_number_of("C002H001S0012001234"), 1234);
+  EXPECT_EQ(capture::frame_number_of("cam1_take2_0042"), 42);
+  EXPECT_EQ(capture::frame_number_of("still"), -1);
+
+  for (const std::string naming : {"frame_{:05d}.png", "C001H001S0001{:06d}.png"}) {
+    TempDir dir("numbered");
+    const int n = 25, first = 399;
+    const MarkerFootage footage = small_footage(n);
+    const auto files = synth::write_footage_png(dir.path.string(), footage, small_render(), "tmp_");
+    ASSERT_EQ(files.size(), static_cast<std::size_t>(n));
+    for (int f = 0; f < n; ++f) fs::rename(files[f], dir.path / fmt::format(fmt::runtime(naming), first + f));
+    const capture::FrameSequence seq = capture::list_frame_sequence(dir.path.string());
+    EXPECT_EQ(seq.first_frame, first) << naming;
+    ASSERT_EQ(seq.files.size(), static_cast<std::size_t>(n));
+
+    // Seeds at the footage's own frame number 399 (its first file).
+    std::vector<Seed> seeds = seeds_from_truth(footage, {"p", "q"});
+    for (Seed& s : seeds) s.frame = first;
+    capture::FrameSource source(dir.path.string());
+    EXPECT_EQ(source.first_frame(), first);
+    const TrackingResult r = capture::track_footage(source, "cam1", {"p", "q"}, seeds);
+    ASSERT_EQ(r.tracks.n_frames(), first + n) << naming;
+    for (int f = 0; f < first; ++f) {
+      EXPECT_TRUE(r.tracks.uv_px.row(f).array().isNaN().all()) << "row " << f;
+      EXPECT_EQ(r.flag(f, 0), TrackFlag::BeforeSeed);
+    }
+    // Row 399 + k is rendered frame k: the same 0.1 px as any lossless PNG
+    // sequence (PngSequenceReadBackAndTracked).
+    for (int f = 0; f < n; ++f)
+      for (int p = 0; p < 2; ++p) {
+        const Eigen::Vector2d truth = footage.centres_px.row(f).segment<2>(2 * p).transpose();
+        EXPECT_LT((r.tracks.uv(first + f, p, 0) - truth).norm(), 0.1) << naming << " frame " << f;
+      }
+
+    // A seed before the footage begins: an error naming the seed file and line.
+    std::vector<Seed> early = seeds;
+    early[1].frame = 12;
+    early[1].source = "seed.csv";
+    early[1].line = 3;
+    capture::FrameSource again(dir.path.string());
+    try {
+      capture::track_footage(again, "cam1", {"p", "q"}, early);
+      ADD_FAILURE() << "expected InputError";
+    } catch (const InputError& e) {
+      EXPECT_EQ(e.file(), "seed.csv");
+      EXPECT_EQ(e.line(), 3);
+      EXPECT_NE(e.reason().find("first frame is 399"), std::string::npos) << e.what();
+    }
   }
 }
 

@@ -1,0 +1,343 @@
+// BioWare text exports as they come (shared/spec/session-format.md), and the
+// UTF-8 / UTF-16 line reading of the force text files.
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <optional>
+
+#include "capture/force_internal.h"
+#include "capture/force_io.h"
+#include "capture/io.h"
+#include "core/error.h"
+
+namespace dropfit::capture {
+namespace detail {
+namespace {
+
+void append_utf8(std::string& out, char32_t cp) {
+  if (cp < 0x80) {
+    out += static_cast<char>(cp);
+  } else if (cp < 0x800) {
+    out += static_cast<char>(0xC0 | (cp >> 6));
+    out += static_cast<char>(0x80 | (cp & 0x3F));
+  } else if (cp < 0x10000) {
+    out += static_cast<char>(0xE0 | (cp >> 12));
+    out += static_cast<char>(0x80 | ((cp >> 6) & 0x3F));
+    out += static_cast<char>(0x80 | (cp & 0x3F));
+  } else {
+    out += static_cast<char>(0xF0 | (cp >> 18));
+    out += static_cast<char>(0x80 | ((cp >> 12) & 0x3F));
+    out += static_cast<char>(0x80 | ((cp >> 6) & 0x3F));
+    out += static_cast<char>(0x80 | (cp & 0x3F));
+  }
+}
+
+// UTF-16 (after its byte-order mark) to UTF-8.
+std::string utf16_to_utf8(const std::string& path, std::string_view bytes, bool big_endian) {
+  if (bytes.size() % 2 != 0)
+    throw InputError(path, 0, 0, "", "UTF-16 file with an odd number of bytes (truncated?)");
+  std::string out;
+  out.reserve(bytes.size() / 2);
+  int line = 1;
+  auto unit = [&](std::size_t i) -> char16_t {
+    const auto a = static_cast<unsigned char>(bytes[i]), b = static_cast<unsigned char>(bytes[i + 1]);
+    return static_cast<char16_t>(big_endian ? (a << 8) | b : (b << 8) | a);
+  };
+  for (std::size_t i = 0; i < bytes.size(); i += 2) {
+    const char16_t u = unit(i);
+    char32_t cp = u;
+    if (u >= 0xD800 && u <= 0xDBFF) {
+      if (i + 3 >= bytes.size()) throw InputError(path, line, 0, "", "UTF-16 file ends inside a surrogate pair");
+      const char16_t low = unit(i + 2);
+      if (low < 0xDC00 || low > 0xDFFF) throw InputError(path, line, 0, "", "invalid UTF-16 surrogate pair");
+      cp = 0x10000 + ((static_cast<char32_t>(u) - 0xD800) << 10) + (low - 0xDC00);
+      i += 2;
+    } else if (u >= 0xDC00 && u <= 0xDFFF) {
+      throw InputError(path, line, 0, "", "invalid UTF-16: a lone low surrogate");
+    }
+    if (cp == '\n') ++line;
+    append_utf8(out, cp);
+  }
+  return out;
+}
+
+// Scale from the unit of a BioWare column (0..7: Fx..Ay) to SI, or nullopt.
+std::optional<double> bioware_scale(int column, std::string_view unit) {
+  if (column < 3) {  // forces
+    if (unit == "N") return 1.0;
+  } else if (column < 6) {  // moments
+    for (std::string_view u : {"N.m", "Nm", "N m", "N*m", "N-m", "N·m"})
+      if (unit == u) return 1.0;
+  } else {  // centre of pressure
+    if (unit == "mm") return 1e-3;
+    if (unit == "m") return 1.0;
+  }
+  return std::nullopt;
+}
+
+int resultant_index(std::string_view name) {
+  for (int c = 0; c < 8; ++c)
+    if (name == kForceResultants[c]) return c;
+  return -1;
+}
+
+// Where things were found, for the errors of read_bioware.
+struct BioWareLines {
+  int header_line = 0;
+  int rate_line = 0;
+  int rate_column = 0;
+  std::vector<std::array<int, 8>> columns;  // per plate, field index of Fx..Ay or -1
+};
+
+// The values after the first field of a header line ("Rate (Hz):<TAB>1000<TAB>1000").
+std::vector<Field> header_values(const Line& l) {
+  std::vector<Field> f = split_fields(l.text, '\t');
+  std::vector<Field> values;
+  for (std::size_t k = 1; k < f.size(); ++k)
+    if (!f[k].text.empty()) values.push_back(f[k]);
+  return values;
+}
+
+BioWareExport parse_bioware(const std::string& path, const std::vector<Line>& lines, std::size_t header,
+                            BioWareLines& where) {
+  BioWareExport ex;
+  std::optional<long long> samples;
+  int samples_line = 0, samples_column = 0;
+  bool have_rate = false;
+  for (std::size_t i = 0; i < header; ++i) {
+    const Line& l = lines[i];
+    const std::vector<Field> f = split_fields(l.text, '\t');
+    const std::string& key = f[0].text;
+    if (iequals_prefix(key, "BioWare Version")) {
+      std::string_view v = std::string_view(key).substr(15);
+      v = trim(v);
+      if (v.size() >= 6 && iequals(v.substr(v.size() - 6), "Export"))
+        v = trim(v.substr(0, v.size() - 6));
+      ex.version = std::string(v);
+    } else if (iequals_prefix(key, "Rate (Hz)")) {
+      const std::vector<Field> values = header_values(l);
+      if (values.empty()) throw InputError(path, l.number, 0, "Rate (Hz)", "no value after 'Rate (Hz):'");
+      for (const Field& v : values) {
+        const double r = parse_number(path, l.number, v, "Rate (Hz)", false);
+        if (!(r > 0.0)) throw InputError(path, l.number, v.column, "Rate (Hz)", "must be positive");
+        if (!have_rate) {
+          ex.sample_rate_hz = r;
+          where.rate_line = l.number;
+          where.rate_column = v.column;
+          have_rate = true;
+        } else if (std::abs(r - ex.sample_rate_hz) > 1e-9 * ex.sample_rate_hz) {
+          throw InputError(path, l.number, v.column, "Rate (Hz)",
+                           fmt::format("columns at different rates ({} and {} Hz): not one record", ex.sample_rate_hz,
+                                       r));
+        }
+      }
+    } else if (iequals_prefix(key, "Samples")) {  // "Samples (#):" or "Samples:"
+      const std::vector<Field> values = header_values(l);
+      if (values.empty()) continue;
+      samples = parse_integer(path, l.number, values[0], "Samples");
+      samples_line = l.number;
+      samples_column = values[0].column;
+      for (const Field& v : values)
+        if (parse_integer(path, l.number, v, "Samples") != *samples)
+          throw InputError(path, l.number, v.column, "Samples",
+                           fmt::format("columns with different sample counts ({} and {})", *samples, v.text));
+    }
+  }
+  if (!have_rate) throw InputError(path, 0, 0, "Rate (Hz)", "missing header line 'Rate (Hz):<TAB>rate'");
+
+  // Column header: blocks of Fx..Ay, one per plate.
+  const Line& head = lines[header];
+  where.header_line = head.number;
+  std::vector<Field> cols = split_fields(head.text, '\t');
+  drop_trailing_empty(cols);
+  std::vector<std::array<int, 8>> blocks;
+  std::vector<int> block_start;
+  for (std::size_t i = 1; i < cols.size(); ++i) {
+    const int c = resultant_index(cols[i].text);
+    if (c < 0) continue;  // another column (BioWare can export more): ignored
+    if (blocks.empty() || blocks.back()[c] >= 0) {
+      blocks.emplace_back();
+      blocks.back().fill(-1);
+      block_start.push_back(static_cast<int>(i));
+    }
+    blocks.back()[c] = static_cast<int>(i);
+  }
+  if (blocks.empty())
+    throw InputError(path, head.number, 0, "",
+                     fmt::format("no force-plate column after '{}' (expected some of {})", cols[0].text,
+                                 fmt::join(kForceResultants, " ")));
+  for (int c = 0; c < 8; ++c) ex.present[c] = blocks[0][c] >= 0;
+  for (std::size_t b = 1; b < blocks.size(); ++b) {
+    for (int c = 0; c < 8; ++c) {
+      if ((blocks[b][c] >= 0) != ex.present[c])
+        throw InputError(path, head.number, cols[block_start[b]].column, kForceResultants[c],
+                         fmt::format("plate {} (from column {}) {} {}, plate 1 {}: the plates' blocks must name the "
+                                     "same columns",
+                                     b + 1, block_start[b] + 1, ex.present[c] ? "lacks" : "has", kForceResultants[c],
+                                     ex.present[c] ? "has it" : "does not"));
+    }
+  }
+  ex.n_plates = static_cast<int>(blocks.size());
+  where.columns = blocks;
+  int last = 0;
+  for (const auto& b : blocks)
+    for (int i : b) last = std::max(last, i);
+
+  // Units.
+  if (header + 1 >= lines.size())
+    throw InputError(path, head.number + 1, 0, "", "expected a units line after the column header");
+  const Line& units_line = lines[header + 1];
+  const std::vector<Field> units = split_fields(units_line.text, '\t');
+  std::vector<std::array<double, 8>> scale(blocks.size());
+  for (std::size_t b = 0; b < blocks.size(); ++b) {
+    for (int c = 0; c < 8; ++c) {
+      if (blocks[b][c] < 0) continue;
+      if (blocks[b][c] >= static_cast<int>(units.size()))
+        throw InputError(path, units_line.number, 0, kForceResultants[c],
+                         fmt::format("the units line has no unit for {} (column {})", kForceResultants[c],
+                                     blocks[b][c] + 1));
+      const Field& u = units[blocks[b][c]];
+      const std::optional<double> s = bioware_scale(c, u.text);
+      if (!s)
+        throw InputError(path, units_line.number, u.column, kForceResultants[c],
+                         fmt::format("unit '{}' for {} is not known (expected {})", u.text, kForceResultants[c],
+                                     c < 3 ? "N" : c < 6 ? "N.m" : "mm or m"));
+      scale[b][c] = *s;
+    }
+  }
+
+  // Data.
+  std::vector<double> t, res;
+  std::vector<int> line_of, col_of;
+  std::vector<std::vector<double>> values(blocks.size());
+  std::size_t end = lines.size();
+  while (end > header + 2 && blank_line(lines[end - 1].text)) --end;
+  for (std::size_t i = header + 2; i < end; ++i) {
+    const Line& l = lines[i];
+    if (blank_line(l.text)) throw InputError(path, l.number, 0, "", "blank line inside the data");
+    std::vector<Field> f = split_fields(l.text, '\t');
+    // Trailing empty fields beyond the header's columns are a trailing tab;
+    // empty fields within them are values (an unloaded plate's Ax Ay).
+    while (f.size() > cols.size() && f.back().text.empty()) f.pop_back();
+    if (static_cast<int>(f.size()) <= last || f.size() > cols.size()) row_length_error(path, l, f, cols, head.number);
+    t.push_back(parse_number(path, l.number, f[0], cols[0].text, false));
+    res.push_back(printed_resolution(f[0].text));
+    line_of.push_back(l.number);
+    col_of.push_back(f[0].column);
+    for (std::size_t b = 0; b < blocks.size(); ++b)
+      for (int c = 0; c < 8; ++c)
+        values[b].push_back(blocks[b][c] < 0 ? std::numeric_limits<double>::quiet_NaN()
+                                             : scale[b][c] * parse_number(path, l.number, f[blocks[b][c]],
+                                                                          kForceResultants[c], c >= 6));
+  }
+  if (t.empty()) throw InputError(path, head.number, 0, "", "no data rows after the column header and units line");
+  const long long rows = static_cast<long long>(t.size());
+  if (samples && *samples != rows)
+    throw InputError(path, samples_line, samples_column, "Samples",
+                     rows < *samples ? fmt::format("the header says {} samples but the record has only {} data rows "
+                                                   "(truncated record?)",
+                                                   *samples, rows)
+                                     : fmt::format("the header says {} samples but the record has {} data rows",
+                                                   *samples, rows));
+  check_uniform_time(path, t, res, line_of, col_of, cols[0].text, ex.sample_rate_hz);
+  const auto n = static_cast<Eigen::Index>(rows);
+  ex.abs_time_s = Eigen::Map<const Eigen::VectorXd>(t.data(), n);
+  for (std::size_t b = 0; b < blocks.size(); ++b)
+    ex.plates.push_back(Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, 8, Eigen::RowMajor>>(values[b].data(),
+                                                                                                    n, 8));
+  return ex;
+}
+
+std::size_t bioware_header(const std::string& path, const std::vector<Line>& lines) {
+  for (std::size_t i = 0; i < lines.size(); ++i) {
+    const std::vector<Field> f = split_fields(lines[i].text, '\t');
+    if (iequals_prefix(f[0].text, "abs time")) return i;
+  }
+  throw InputError(path, 0, 0, "", "no column header: expected a line beginning 'abs time' (BioWare export)");
+}
+
+}  // namespace
+
+std::vector<Line> read_text_lines(const std::string& path) {
+  namespace fs = std::filesystem;
+  require_file(path);
+  std::error_code ec;
+  const std::uintmax_t size = fs::file_size(path, ec);
+  if (ec) throw InputError(path, 0, 0, "", fmt::format("cannot read its size: {}", ec.message()));
+  if (size > kMaxForceTextBytes)
+    throw InputError(path, 0, 0, "",
+                     fmt::format("file of {} bytes, larger than the {} bytes a force export here may have", size,
+                                 kMaxForceTextBytes));
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw InputError(path, 0, 0, "", "cannot open");
+  std::string bytes(static_cast<std::size_t>(size), '\0');
+  in.read(bytes.data(), static_cast<std::streamsize>(size));
+  if (static_cast<std::uintmax_t>(in.gcount()) != size) throw InputError(path, 0, 0, "", "cannot read the whole file");
+
+  std::string text;
+  if (bytes.size() >= 2 && static_cast<unsigned char>(bytes[0]) == 0xFF && static_cast<unsigned char>(bytes[1]) == 0xFE)
+    text = utf16_to_utf8(path, std::string_view(bytes).substr(2), false);
+  else if (bytes.size() >= 2 && static_cast<unsigned char>(bytes[0]) == 0xFE &&
+           static_cast<unsigned char>(bytes[1]) == 0xFF)
+    text = utf16_to_utf8(path, std::string_view(bytes).substr(2), true);
+  else if (bytes.size() >= 3 && bytes.compare(0, 3, "\xEF\xBB\xBF") == 0)
+    text = bytes.substr(3);
+  else
+    text = std::move(bytes);
+
+  std::vector<Line> lines;
+  std::size_t at = 0;
+  int number = 1;
+  while (at < text.size()) {
+    std::size_t end = text.find('\n', at);
+    if (end == std::string::npos) end = text.size();
+    std::string_view l(text.data() + at, end - at);
+    if (!l.empty() && l.back() == '\r') l.remove_suffix(1);
+    if (l.find('\0') != std::string_view::npos)
+      throw InputError(path, number, static_cast<int>(l.find('\0')) + 1, "",
+                       "NUL byte in a text file (UTF-16 without a byte-order mark?)");
+    lines.push_back({number++, std::string(l)});
+    at = end + 1;
+  }
+  return lines;
+}
+
+ForceRecord read_bioware(const std::string& path, const std::vector<Line>& lines, std::size_t header,
+                         const ForcePlateSpec& plate) {
+  BioWareLines where;
+  BioWareExport ex = parse_bioware(path, lines, header, where);
+  if (!ex.present[2])
+    throw InputError(path, where.header_line, 0, "Fz",
+                     "no Fz column: this export cannot give the ground reaction force (export Fz from BioWare)");
+  if (plate.plate < 1 || plate.plate > ex.n_plates)
+    throw InputError(path, where.header_line, 0, "forceplate.plate",
+                     fmt::format("the manifest picks plate {}, the export has {} plate{}", plate.plate, ex.n_plates,
+                                 ex.n_plates == 1 ? "" : "s"));
+  if (std::abs(ex.sample_rate_hz - plate.sample_rate_hz) > 1e-6 * plate.sample_rate_hz)
+    throw InputError(path, where.rate_line, where.rate_column, "Rate (Hz)",
+                     fmt::format("sample rate {} Hz disagrees with the manifest's forceplate.sample_rate_hz = {} Hz",
+                                 ex.sample_rate_hz, plate.sample_rate_hz));
+  ForceRecord rec;
+  rec.layout = ForceLayout::Resultants;
+  rec.sample_rate_hz = ex.sample_rate_hz;
+  const int n = static_cast<int>(ex.abs_time_s.size());
+  rec.pretrigger_samples = std::min(trigger_sample_from_fraction(plate.pretrigger_fraction, n), n - 1);
+  rec.t_s = ex.abs_time_s.array() - ex.abs_time_s[rec.pretrigger_samples];
+  rec.data = std::move(ex.plates[plate.plate - 1]);
+  return rec;
+}
+
+}  // namespace detail
+
+BioWareExport read_bioware_export(const std::string& path) {
+  const std::vector<detail::Line> lines = detail::read_text_lines(path);
+  detail::BioWareLines where;
+  return detail::parse_bioware(path, lines, detail::bioware_header(path, lines), where);
+}
+
+}  // namespace dropfit::capture
