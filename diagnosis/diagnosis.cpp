@@ -153,7 +153,6 @@ DiagnosisResult diagnose(const SessionState& state, const DiagnosisOptions& opti
   result.baseline_model = fitting::model_name(mo.fit.model);
   bool any = false;
   for (const auto& t : state.trials) any = any || t.result.accepted;
-  if (!any) throw Error("closing the loop: no accepted trial");
 
   // Stages in order; the first whose residual stays unexplained stops the rest.
   std::string unresolved;
@@ -167,6 +166,12 @@ DiagnosisResult diagnose(const SessionState& state, const DiagnosisOptions& opti
   if (options.calibration) {
     append(result, state.calibration);
     if (!state.calibration.remaining.empty()) unresolved = "calibration";
+  }
+  if (!any && unresolved.empty()) {
+    // Every trial rejected (its reason is in trial.json): nothing for the
+    // later stages to judge.
+    result.notes.push_back("no accepted trial: sync, force plate and mat not assessed");
+    unresolved = "trials";
   }
 
   // ---- sync ----

@@ -365,6 +365,9 @@ struct MatStageOptions {
   // of its own measured noise SDs (plate: quiet pre-trigger; markers: the
   // free-fall fit's RMS).
   double gate_noise_sd = 2.0;
+  // ... and structure counts as unexplained only beyond this many (a
+  // prediction from one trial carries that trial's parameter error too).
+  double unexplained_noise_sd = 3.0;
   int max_effects = 3;   // forward selection rounds
   int threads = 2;       // candidate refits in parallel
 };

@@ -131,6 +131,7 @@ ErrorSet error_set(const HeldOutErrors& e) {
   return {{"heldout_force_rms_noise_sd", e.mean_force_sd()},
           {"heldout_impactor_rms_noise_sd", e.mean_impactor_sd()},
           {"rms_force_pct_peak", mean(e.force_pct_peak)},
+          {"heldout_rms_force_pct_peak", mean(e.force_pct_peak)},
           {"heldout_impactor_rms_mm", mean(e.impactor_mm)},
           {"heldout_peak_force_pct_max", e.peak_pct.size() ? e.peak_pct.maxCoeff() : kNaN}};
 }
@@ -335,7 +336,7 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
   out.fit_after = current;
   // Structure left beyond the noise: unexplained, with its frequency.
   const double f_end = before.mean_force_sd(), k_end = before.mean_impactor_sd();
-  if (f_end > options.gate_noise_sd || k_end > options.gate_noise_sd) {
+  if (f_end > options.unexplained_noise_sd || k_end > options.unexplained_noise_sd) {
     const PeriodicPeak peak = periodogram_peak(before.force_residual_n, before.dt_s, options.decision.alpha, 5.0);
     Remaining r;
     r.stage = "mat";

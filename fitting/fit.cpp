@@ -1225,9 +1225,27 @@ TrialReport predict(const TrialData& trial, const MatParams& params, const FitOp
   sim.layer1_m.resize(n);
   sim.layer2_m.resize(n);
   const double v0 = trial.impact_velocity_m_s, g = trial.gravity_m_s2;
+  // The force exactly on the shifted samples (one more simulation, so that
+  // `dropfit simulate --first-output` reproduces the reported curve): from
+  // the first sample at or after the fitted contact.
+  Eigen::Index i_c = 0;
+  while (i_c < n && trial.t_s[i_c] - shift < 0.0) ++i_c;
+  Eigen::VectorXd exact_grf;
+  if (i_c < n) {
+    Impact imp = p.impact;
+    imp.output_dt_s = p.dt;
+    imp.first_output_s = std::clamp(trial.t_s[i_c] - shift, 0.0, p.dt * (1.0 - 1e-12));
+    imp.duration_s = imp.first_output_s + static_cast<double>(n - 1 - i_c) * p.dt + 0.5 * p.dt;
+    try {
+      exact_grf = options.simulator ? options.simulator(params, imp).grf_n : simulate(options.model, params, imp).grf_n;
+    } catch (const Error&) {
+      exact_grf.resize(0);
+    }
+  }
   for (Eigen::Index i = 0; i < n; ++i) {
     const double t = trial.t_s[i];
-    sim.grf_n[i] = on_grid(s.grf, t - shift, p.h, 0.0);
+    const Eigen::Index k = i - i_c;
+    sim.grf_n[i] = k >= 0 && k < exact_grf.size() ? exact_grf[k] : on_grid(s.grf, t - shift, p.h, 0.0);
     sim.impactor_m[i] = t < 0.0 ? v0 * t + 0.5 * g * t * t : on_grid(s.impactor, t, p.h, 0.0);
     sim.surface_m[i] = t < 0.0 ? 0.0 : on_grid(s.surface, t, p.h, 0.0);
     sim.layer1_m[i] = t < 0.0 ? 0.0 : on_grid(s.layer1, t, p.h, 0.0);

@@ -279,18 +279,24 @@ TEST(CliExport, SimulateWithTheFittedParametersReproducesTheFitsCurve) {
   const auto doc = nlohmann::json::parse(read_text(out / "fit.json"));
   ASSERT_FALSE(doc["train"].empty());
   const std::string train = doc["train"][0].get<std::string>();
-  double velocity = NAN;
+  double velocity = NAN, shift = NAN;
   for (const auto& t : doc["trials"])
-    if (t["id"] == train) velocity = t["impact_velocity_m_s"].get<double>();
+    if (t["id"] == train) {
+      velocity = t["impact_velocity_m_s"].get<double>();
+      shift = t["contact_shift_s"].get<double>();
+    }
   ASSERT_TRUE(std::isfinite(velocity)) << train;
-  const Table series = read_csv(read_text(out / "series" / (train + ".csv")));
-  ASSERT_GT(series.rows.size(), 50u);
+  ASSERT_TRUE(std::isfinite(shift)) << train;
+  Table series = read_csv(read_text(out / "series" / (train + ".csv")));
   const int ct = series.col("t_s"), cf = series.col("simulated_fz_n");
   ASSERT_GE(ct, 0);
   ASSERT_GE(cf, 0);
-  // The series starts at the first force sample at or after contact: its
-  // time (from contact) is the simulation's first output time.
-  const double t_first = series.rows.front()[ct], t_last = series.rows.back()[ct];
+  // The fit placed the trial's contact at contact_shift_s on its clock: the
+  // series' force is the simulation from the first sample at or after it,
+  // that sample's time from the fitted contact being the first output time.
+  while (!series.rows.empty() && series.rows.front()[ct] - shift < 0.0) series.rows.erase(series.rows.begin());
+  ASSERT_GT(series.rows.size(), 50u);
+  const double t_first = series.rows.front()[ct] - shift, t_last = series.rows.back()[ct] - shift;
   const double dt = series.rows[1][ct] - series.rows[0][ct];
   const fs::path sim_path = dir / "sim.csv";
   const CliRun sim = run_dropfit({"simulate", "--params", (out / "fit.json").string(), "--velocity",
@@ -309,7 +315,7 @@ TEST(CliExport, SimulateWithTheFittedParametersReproducesTheFitsCurve) {
   ASSERT_GT(peak, 1000.0);
   double worst = 0.0;
   for (std::size_t i = 0; i < series.rows.size(); ++i) {
-    ASSERT_NEAR(s.rows[i][st], series.rows[i][ct], 1e-3 * dt) << "row " << i;
+    ASSERT_NEAR(s.rows[i][st], series.rows[i][ct] - shift, 1e-3 * dt) << "row " << i;
     worst = std::max(worst, std::abs(s.rows[i][sf] - series.rows[i][cf]));
   }
   EXPECT_LE(worst, 1e-6 * peak) << "largest |simulate - fit series| " << worst << " N, peak " << peak << " N";

@@ -155,11 +155,25 @@ TEST_F(Plausibility, ForceSampleNear1e308Rejects) {
       << t.dump();
 }
 
-// c01's u pixel in cam1 with its sign flipped (a typing slip): the DLT
-// cannot fit it, its check markers land centimetres off, every trial is
-// rejected with the calibration's reason.
+// c01's u pixel in cam1 with its sign flipped (a typing slip): the
+// calibration stage finds it by cross-validation and leaves it out, so the
+// trials are measured through a sound calibration and accepted.
+TEST_F(Plausibility, OneSlippedCalibrationPixelIsLeftOutAndTheTrialsStand) {
+  edit("calibration/cam1.csv", "c01,158.639127,", "c01,-158.639127,");
+  const CliRun r = run("process");
+  ASSERT_EQ(r.exit_code, 0) << r.describe();
+  for (int k = 1; k <= 5; ++k) EXPECT_TRUE(trial_json(fmt::format("trial{}", k))["accepted"].get<bool>());
+}
+
+// Four calibration pixels slipped in cam1 (signs flipped): more than the
+// stage can leave out with the markers it has; the DLT cannot fit them, the
+// check markers land centimetres off, and every trial is rejected with the
+// calibration's reason.
 TEST_F(Plausibility, CalibrationThatFailsItsOwnCheckRejectsEveryTrial) {
   edit("calibration/cam1.csv", "c01,158.639127,", "c01,-158.639127,");
+  edit("calibration/cam1.csv", "c03,156.739974,", "c03,-156.739974,");
+  edit("calibration/cam1.csv", "c05,604.287214,", "c05,-604.287214,");
+  edit("calibration/cam1.csv", "c07,617.971060,", "c07,-617.971060,");
   expect_all_rejected(run(), "calibration failed its own check");
 }
 
