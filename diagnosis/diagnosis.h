@@ -357,7 +357,7 @@ struct MatStageOptions {
   // start. Fewer is faster but can stay in the baseline's basin: Model 4's
   // springs in series trade places, and an effect's optimum may lie in the
   // other basin.
-  int refit_starts = 2;
+  int refit_starts = 4;
   // The baseline fit when the caller already has it (the main run's Model 4):
   // it is reused, not refitted.
   const fitting::FitResult* baseline = nullptr;
