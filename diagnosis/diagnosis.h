@@ -369,6 +369,7 @@ struct MatStageOptions {
   // prediction from one trial carries that trial's parameter error too).
   double unexplained_noise_sd = 3.0;
   int max_effects = 3;   // forward selection rounds
+  double wald_sd = 3.0;  // an effect's parameter must stand this many SEs from "absent"
   int threads = 2;       // candidate refits in parallel
 };
 

@@ -18,6 +18,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <limits>
 #include <numeric>
 #include <optional>
 #include <thread>
@@ -291,7 +292,23 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
           "held-out force {:.2f} -> {:.2f} noise SDs, impactor travel {:.2f} -> {:.2f} noise SDs; {} change {:+.1f} "
           "on N_eff = {:.0f}",
           f0, f1, k0, k1, criterion_name(options.criterion), mc.delta, mc.n_eff);
+      // Wald: the effect's own parameter must stand beyond wald_sd SE from
+      // the value that means "absent", or the effect is not there.
+      std::string wald;
+      for (const auto& e : t.fit->estimates) {
+        double off = std::numeric_limits<double>::quiet_NaN();
+        // Only where the SE means something whatever the misfit: the layer
+        // masses' declared split (the other effects' SEs, scaled by a
+        // residual the candidate may only partly explain, are not a test).
+        if (c.masses && e.name == "m1_kg") off = base.m1_kg;
+        const bool mine = std::find(c.free.begin(), c.free.end(), e.name) != c.free.end() || (c.masses && e.name == "m1_kg");
+        if (!mine || !std::isfinite(off)) continue;
+        if (!(std::abs(e.value - off) > options.wald_sd * e.se))
+          wald = fmt::format("{} = {} is within {} SE ({}) of {} (absent)", e.name, fmt_value(e.value), options.wald_sd,
+                             fmt_value(e.se), fmt_value(off));
+      }
       if (!falls) why = "held-out error does not fall beyond noise (" + numbers + ")";
+      else if (!wald.empty()) why = wald;
       else if (worse) why = "the other channel gets worse (" + numbers + ")";
       else if (!mc.larger_supported) why = "not supported by the information criterion (" + numbers + ")";
       if (!why.empty()) {

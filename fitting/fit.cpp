@@ -757,7 +757,19 @@ std::vector<Eigen::VectorXd> candidate_starts(const ParamSpace& space, const Fit
                                               const TrialData& first) {
   const int n = space.size();
   std::vector<Eigen::VectorXd> cands;
-  if (o.initial.k1_n_m > 0.0) cands.push_back(space.from_mat(o.initial));
+  if (o.initial.k1_n_m > 0.0) {
+    // A given start (a previous optimum) is never taken from a bound: a
+    // coordinate on its bound moves 5 % of its range inside (a corner of
+    // the box is also where the simulation is dearest: stiff and damped).
+    Eigen::VectorXd u = space.from_mat(o.initial);
+    for (int j = 0; j < n; ++j) {
+      const FreeParam& f = space.free[j];
+      if (f.transform != Transform::Log) continue;
+      const double margin = 0.05 * (f.upper - f.lower);
+      u[j] = std::clamp(u[j], f.lower + margin, f.upper - margin);
+    }
+    cands.push_back(u);
+  }
   cands.push_back(space.from_mat(data_guess(k_eff, o, first)));
   std::vector<int> kj, rj;
   for (int j = 0; j < n; ++j) {
