@@ -642,6 +642,8 @@ CalibrationQuality calibration_quality(const calibration::CalibrationResult& cal
   CalibrationQuality q;
   std::string worst_camera;
   for (const auto& camera : calibration.cameras) {
+    // NaN: not measured (coefficients given, e.g. by a wand calibration).
+    if (!std::isfinite(camera.fit_rms_px)) continue;
     if (!(camera.fit_rms_px <= q.fit_rms_px)) {
       q.fit_rms_px = camera.fit_rms_px;
       worst_camera = camera.camera.name;
@@ -649,7 +651,7 @@ CalibrationQuality calibration_quality(const calibration::CalibrationResult& cal
   }
   if (calibration.check_rms_m.allFinite()) q.check_rms_m = calibration.check_rms_m.norm();
   std::vector<std::string> problems;
-  if (!(q.fit_rms_px <= kMaxCalibrationFitRmsPx) && !calibration.cameras.empty()) {
+  if (std::isfinite(q.fit_rms_px) && q.fit_rms_px > kMaxCalibrationFitRmsPx) {
     problems.push_back(fmt::format("camera {} fits its calibration points to {:.3g} px RMS (limit {:.0f} px)",
                                    worst_camera, q.fit_rms_px, kMaxCalibrationFitRmsPx));
   }
