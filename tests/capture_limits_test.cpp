@@ -23,7 +23,8 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// A fresh folder per test (removed at the end) and whole-file text I/O.
+// A fresh folder per test (removed at the end) and text helpers.
+using testsupport::line_of;
 using testsupport::read_text;
 using testsupport::TempDir;
 using testsupport::write_text;
@@ -66,14 +67,6 @@ std::string with_line(const std::string& text, const std::string& key, const std
   EXPECT_NE(at, std::string::npos) << key;
   const std::size_t end = text.find('\n', at + 1);
   return text.substr(0, at + 1) + replacement + text.substr(end);
-}
-
-int line_of(const std::string& text, const std::string& prefix) {
-  std::istringstream in(text);
-  std::string line;
-  for (int n = 1; std::getline(in, line); ++n)
-    if (line.rfind(prefix, 0) == 0) return n;
-  return -1;
 }
 
 TEST(CaptureLimits, LongHeaderFieldWithoutCommaIsAnErrorNotACrash) {

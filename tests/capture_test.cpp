@@ -25,19 +25,11 @@ namespace {
 namespace fs = std::filesystem;
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
-// A fresh folder per test (removed at the end) and whole-file text I/O.
+// A fresh folder per test (removed at the end) and text helpers.
+using testsupport::line_of;
 using testsupport::read_text;
 using testsupport::TempDir;
 using testsupport::write_text;
-
-// 1-based number of the first line of `text` that begins with `prefix`.
-int line_of(const std::string& text, const std::string& prefix) {
-  std::istringstream in(text);
-  std::string line;
-  for (int n = 1; std::getline(in, line); ++n)
-    if (line.rfind(prefix, 0) == 0) return n;
-  return -1;
-}
 
 // Runs `fn`, which must throw InputError located at file/line/field; the
 // column is checked when >= 0, and must merely be known (> 0) when -1. The message must name the file, the line and the field.

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <filesystem>
 #include <fstream>
@@ -21,8 +22,10 @@ class TempDir {
   TempDir() {
     static std::atomic<int> counter{0};
     const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    path_ = std::filesystem::temp_directory_path() /
-            fmt::format("dropfit_test_{}_{}_{}", info ? info->name() : "x", ::getpid(), counter++);
+    // Parameterised tests are named "Name/0": one folder level, not two.
+    std::string test = info ? info->name() : "x";
+    std::replace(test.begin(), test.end(), '/', '_');
+    path_ = std::filesystem::temp_directory_path() / fmt::format("dropfit_test_{}_{}_{}", test, ::getpid(), counter++);
     std::filesystem::remove_all(path_);
     std::filesystem::create_directories(path_);
   }
@@ -60,6 +63,16 @@ inline std::string read_text(const std::filesystem::path& path) {
   std::stringstream ss;
   ss << in.rdbuf();
   return ss.str();
+}
+
+// 1-based number of the first line of `text` that begins with `prefix` (-1
+// when none does).
+inline int line_of(const std::string& text, const std::string& prefix) {
+  std::istringstream in(text);
+  std::string line;
+  for (int n = 1; std::getline(in, line); ++n)
+    if (line.rfind(prefix, 0) == 0) return n;
+  return -1;
 }
 
 }  // namespace dropfit::testsupport
