@@ -9,18 +9,16 @@
 #pragma GCC diagnostic ignored "-Wstringop-truncation"
 #include <libfccp/csv.h>
 #pragma GCC diagnostic pop
-#include <unistd.h>
 
 #include <algorithm>
-#include <atomic>
 #include <charconv>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <limits>
 #include <optional>
 
+#include "core/atomic_file.h"
 #include "core/error.h"
 
 namespace dropfit::capture::detail {
@@ -330,30 +328,17 @@ void check_uniform_time(const std::string& file, const std::vector<double>& t, c
   }
 }
 
-// Writes `content` to a temporary file beside `path`, then renames it over
-// `path`, so that a reader never sees a partial file.
+// Writes `content` whole or not at all (core/atomic_file.h: temporary file
+// beside `path`, fsync, rename), into a folder that must exist already (the
+// writers make no folders). Errors name `path`.
 void write_whole(const std::string& path, const std::string& content) {
-  static std::atomic<unsigned> counter{0};
-  const fs::path target(path);
-  fs::path temp = target;
-  temp += fmt::format(".tmp{}-{}", static_cast<long>(::getpid()), counter++);
-  {
-    std::ofstream out(temp, std::ios::binary | std::ios::trunc);
-    if (!out) throw Error(fmt::format("cannot write {}: cannot create {}", path, temp.string()));
-    out.write(content.data(), static_cast<std::streamsize>(content.size()));
-    out.close();
-    if (!out) {
-      std::error_code ec;
-      fs::remove(temp, ec);
-      throw Error(fmt::format("cannot write {}: write failed", path));
-    }
-  }
-  std::error_code ec;
-  fs::rename(temp, target, ec);
-  if (ec) {
-    std::error_code ignored;
-    fs::remove(temp, ignored);
-    throw Error(fmt::format("cannot write {}: {}", path, ec.message()));
+  const fs::path parent = fs::path(path).parent_path();
+  if (!parent.empty() && !fs::is_directory(parent))
+    throw Error(fmt::format("cannot write {}: no folder {}", path, parent.string()));
+  try {
+    write_file_atomic(path, content);
+  } catch (const Error& e) {
+    throw Error(fmt::format("cannot write {}: {}", path, e.what()));
   }
 }
 

@@ -93,6 +93,23 @@ std::string xyzpts_csv(const reconstruction::Trajectories& trajectories) {
   return out;
 }
 
+namespace {
+// The per-frame reprojection residuals (px), one row per frame, one column
+// per point, 6 significant digits ("NaN" when unknown): the body shared by
+// residuals_csv and xyzres_csv.
+std::string residual_rows_csv(const reconstruction::Trajectories& trajectories) {
+  std::string out;
+  for (Eigen::Index f = 0; f < trajectories.residual_px.rows(); ++f) {
+    for (int p = 0; p < trajectories.n_points(); ++p) {
+      if (p) out += ',';
+      out += csv_number(trajectories.residual_px(f, p), 6);
+    }
+    out += '\n';
+  }
+  return out;
+}
+}  // namespace
+
 std::string residuals_csv(const reconstruction::Trajectories& trajectories) {
   const int n_points = trajectories.n_points();
   std::string out;
@@ -101,14 +118,7 @@ std::string residuals_csv(const reconstruction::Trajectories& trajectories) {
     out += fmt::format("pt{}_res_px", p + 1);
   }
   out += '\n';
-  for (Eigen::Index f = 0; f < trajectories.residual_px.rows(); ++f) {
-    for (int p = 0; p < n_points; ++p) {
-      if (p) out += ',';
-      out += csv_number(trajectories.residual_px(f, p), 6);
-    }
-    out += '\n';
-  }
-  return out;
+  return out + residual_rows_csv(trajectories);
 }
 
 std::string xyzres_csv(const reconstruction::Trajectories& trajectories,
@@ -121,14 +131,7 @@ std::string xyzres_csv(const reconstruction::Trajectories& trajectories,
     out += (named ? point_names[p] : fmt::format("pt{}", p + 1)) + "_dltres";
   }
   out += '\n';
-  for (Eigen::Index f = 0; f < trajectories.residual_px.rows(); ++f) {
-    for (int p = 0; p < n_points; ++p) {
-      if (p) out += ',';
-      out += csv_number(trajectories.residual_px(f, p), 6);
-    }
-    out += '\n';
-  }
-  return out;
+  return out + residual_rows_csv(trajectories);
 }
 
 namespace {

@@ -21,6 +21,7 @@
 #include "core/error.h"
 #include "forceplate/forceplate.h"
 #include "samples/generator/synth.h"
+#include "support/temp_dir.h"
 
 namespace fs = std::filesystem;
 using namespace dropfit;
@@ -236,28 +237,7 @@ Spec sample_spec(C3dProcessor p, bool float_data) {
   return s;
 }
 
-class TempDir {
- public:
-  TempDir() {
-    static int counter = 0;
-    path_ = fs::temp_directory_path() / ("dropfit_c3d_test_" + std::to_string(::getpid()) + "_" +
-                                         std::to_string(counter++));
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string write(const std::string& name, const std::string& bytes) const {
-    const std::string p = (path_ / name).string();
-    std::ofstream(p, std::ios::binary) << bytes;
-    return p;
-  }
-  const fs::path& path() const { return path_; }
-
- private:
-  fs::path path_;
-};
+using dropfit::testsupport::TempDir;
 
 // Every check of the synthetic sample, whatever its processor and number format.
 void check_sample(const C3dFile& f, const Spec& s) {

@@ -23,6 +23,7 @@
 #include "capture/io.h"
 #include "core/error.h"
 #include "support/cameras.h"
+#include "support/temp_dir.h"
 
 namespace dropfit::capture {
 namespace {
@@ -30,38 +31,10 @@ namespace {
 namespace fs = std::filesystem;
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
-class TempDir {
- public:
-  TempDir() {
-    static std::atomic<int> counter{0};
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    path_ = fs::temp_directory_path() /
-            fmt::format("dropfit_formats_{}_{}_{}", info ? info->name() : "x", ::getpid(), counter++);
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string file(const std::string& name) const { return (path_ / name).string(); }
-  const fs::path& path() const { return path_; }
-
- private:
-  fs::path path_;
-};
-
-void write_text(const std::string& path, const std::string& text) {
-  fs::create_directories(fs::path(path).parent_path());
-  std::ofstream(path, std::ios::binary) << text;
-}
-
-std::string read_text(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
+// A fresh folder per test (removed at the end) and whole-file text I/O.
+using testsupport::read_text;
+using testsupport::TempDir;
+using testsupport::write_text;
 
 // `fn` must throw InputError naming `file` (and `line`, `field` when given),
 // with `reason_part` in its reason.

@@ -16,44 +16,18 @@
 
 #include "capture/io.h"
 #include "core/error.h"
+#include "support/temp_dir.h"
 
 namespace dropfit::capture {
 namespace {
 
 namespace fs = std::filesystem;
 
-class TempDir {
- public:
-  TempDir() {
-    static std::atomic<int> counter{0};
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    path_ = fs::temp_directory_path() /
-            fmt::format("dropfit_limits_{}_{}_{}", info ? info->name() : "x", ::getpid(), counter++);
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string file(const std::string& name) const { return (path_ / name).string(); }
-  const fs::path& path() const { return path_; }
-
- private:
-  fs::path path_;
-};
-
-void write_text(const std::string& path, const std::string& text) {
-  fs::create_directories(fs::path(path).parent_path());
-  std::ofstream(path, std::ios::binary) << text;
-}
-
-std::string read_text(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
+// A fresh folder per test (removed at the end) and text helpers.
+using testsupport::line_of;
+using testsupport::read_text;
+using testsupport::TempDir;
+using testsupport::write_text;
 
 // `fn` must throw InputError naming `file`, `line` and `column` (when >= 0)
 // and `field`, with `reason_part` in its reason; the message names the file.
@@ -93,14 +67,6 @@ std::string with_line(const std::string& text, const std::string& key, const std
   EXPECT_NE(at, std::string::npos) << key;
   const std::size_t end = text.find('\n', at + 1);
   return text.substr(0, at + 1) + replacement + text.substr(end);
-}
-
-int line_of(const std::string& text, const std::string& prefix) {
-  std::istringstream in(text);
-  std::string line;
-  for (int n = 1; std::getline(in, line); ++n)
-    if (line.rfind(prefix, 0) == 0) return n;
-  return -1;
 }
 
 TEST(CaptureLimits, LongHeaderFieldWithoutCommaIsAnErrorNotACrash) {

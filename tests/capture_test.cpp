@@ -17,6 +17,7 @@
 
 #include "capture/io.h"
 #include "core/error.h"
+#include "support/temp_dir.h"
 
 namespace dropfit::capture {
 namespace {
@@ -24,48 +25,11 @@ namespace {
 namespace fs = std::filesystem;
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
-// A fresh folder, removed at the end of the test.
-class TempDir {
- public:
-  TempDir() {
-    static std::atomic<int> counter{0};
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    path_ = fs::temp_directory_path() /
-            fmt::format("dropfit_capture_{}_{}_{}", info ? info->name() : "x", ::getpid(), counter++);
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string file(const std::string& name) const { return (path_ / name).string(); }
-  const fs::path& path() const { return path_; }
-
- private:
-  fs::path path_;
-};
-
-void write_text(const std::string& path, const std::string& text) {
-  fs::create_directories(fs::path(path).parent_path());
-  std::ofstream(path, std::ios::binary) << text;
-}
-
-std::string read_text(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-// 1-based number of the first line of `text` that begins with `prefix`.
-int line_of(const std::string& text, const std::string& prefix) {
-  std::istringstream in(text);
-  std::string line;
-  for (int n = 1; std::getline(in, line); ++n)
-    if (line.rfind(prefix, 0) == 0) return n;
-  return -1;
-}
+// A fresh folder per test (removed at the end) and text helpers.
+using testsupport::line_of;
+using testsupport::read_text;
+using testsupport::TempDir;
+using testsupport::write_text;
 
 // Runs `fn`, which must throw InputError located at file/line/field; the
 // column is checked when >= 0, and must merely be known (> 0) when -1. The message must name the file, the line and the field.

@@ -18,6 +18,7 @@
 #include "core/error.h"
 #include "forceplate/forceplate.h"
 #include "samples/generator/synth.h"
+#include "support/temp_dir.h"
 
 namespace fs = std::filesystem;
 using namespace dropfit;
@@ -25,27 +26,7 @@ using namespace dropfit::capture;
 
 namespace {
 
-class TempDir {
- public:
-  TempDir() {
-    static int counter = 0;
-    path_ = fs::temp_directory_path() /
-            ("dropfit_bioware_test_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string write(const std::string& name, const std::string& bytes) const {
-    const std::string p = (path_ / name).string();
-    std::ofstream(p, std::ios::binary) << bytes;
-    return p;
-  }
-
- private:
-  fs::path path_;
-};
+using dropfit::testsupport::TempDir;
 
 fs::path real(const std::string& name) {
   return fs::path(DROPFIT_SOURCE_DIR) / ".." / "shared" / "real" / "kistler-bioware-biomdp" / name;

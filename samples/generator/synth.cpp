@@ -23,16 +23,14 @@
 #include <fmt/format.h>
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <iterator>
 #include <limits>
 #include <nlohmann/json.hpp>
 #include <random>
-#include <unistd.h>
 
+#include "core/atomic_file.h"
 #include "core/error.h"
 
 namespace dropfit::synth {
@@ -1189,29 +1187,14 @@ void write_truth_json(const std::string& path, const SynthTruth& t) {
   }
   j["trials"] = trials;
 
-  // Whole or not at all: temporary name beside it, then rename.
-  namespace fs = std::filesystem;
-  static std::atomic<unsigned> counter{0};
-  const fs::path target(path);
-  fs::path temp = target;
-  temp += fmt::format(".tmp{}-{}", static_cast<long>(::getpid()), counter++);
-  {
-    std::ofstream f(temp, std::ios::binary | std::ios::trunc);
-    if (!f) throw Error(fmt::format("cannot write {}: cannot create {}", path, temp.string()));
-    f << j.dump(1) << '\n';
-    f.close();
-    if (!f) {
-      std::error_code ec;
-      fs::remove(temp, ec);
-      throw Error(fmt::format("cannot write {}: write failed", path));
-    }
-  }
-  std::error_code ec;
-  fs::rename(temp, target, ec);
-  if (ec) {
-    std::error_code ignored;
-    fs::remove(temp, ignored);
-    throw Error(fmt::format("cannot write {}: {}", path, ec.message()));
+  // Whole or not at all (core/atomic_file.h), into a folder that must exist.
+  const std::filesystem::path parent = std::filesystem::path(path).parent_path();
+  if (!parent.empty() && !std::filesystem::is_directory(parent))
+    throw Error(fmt::format("cannot write {}: no folder {}", path, parent.string()));
+  try {
+    write_file_atomic(path, j.dump(1) + '\n');
+  } catch (const Error& e) {
+    throw Error(fmt::format("cannot write {}: {}", path, e.what()));
   }
 }
 

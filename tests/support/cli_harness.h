@@ -21,45 +21,16 @@
 
 #include "capture/io.h"
 #include "samples/generator/synth.h"
+#include "support/temp_dir.h"
 
 namespace dropfit::clitest {
 
 namespace fs = std::filesystem;
 
-// A fresh folder named after the running test, removed at the end.
-class TempDir {
- public:
-  TempDir() {
-    static std::atomic<int> counter{0};
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    path_ = fs::temp_directory_path() /
-            fmt::format("dropfit_cli_{}_{}_{}", info ? info->name() : "x", ::getpid(), counter++);
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  TempDir(const TempDir&) = delete;
-  TempDir& operator=(const TempDir&) = delete;
-  const fs::path& path() const { return path_; }
-  fs::path operator/(const std::string& name) const { return path_ / name; }
-
- private:
-  fs::path path_;
-};
-
-inline std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-inline void write_text(const fs::path& path, const std::string& text) {
-  std::ofstream(path, std::ios::binary | std::ios::trunc) << text;
-}
+// A fresh folder per test and whole-file text I/O (support/temp_dir.h).
+using testsupport::read_text;
+using testsupport::TempDir;
+using testsupport::write_text;
 
 // Replaces the first occurrence of `from` (which must be there).
 inline std::string replace_first(std::string text, const std::string& from, const std::string& to) {
