@@ -66,7 +66,9 @@ void expect_recovers(const Outcome& o, bool cubic) {
   const json& mat = o.truth["mat"];
   EXPECT_NEAR(param(o.fit, "k1_n_m") / mat["k1"].get<double>(), 1.0, 0.05) << "k1";
   EXPECT_NEAR(param(o.fit, "k3_n_m") / mat["k3"].get<double>(), 1.0, 0.05) << "k3";
-  if (cubic) EXPECT_NEAR(param(o.fit, "k1_cubic_n_m3") / mat["k1_cubic"].get<double>(), 1.0, 0.10) << "cubic";
+  if (cubic) {
+    EXPECT_NEAR(param(o.fit, "k1_cubic_n_m3") / mat["k1_cubic"].get<double>(), 1.0, 0.10) << "cubic";
+  }
   for (const auto& t : o.truth["trials"]) {
     const std::string id = t["id"];
     SCOPED_TRACE(id);
