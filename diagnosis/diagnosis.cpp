@@ -215,11 +215,6 @@ DiagnosisResult diagnose(const SessionState& state, const DiagnosisOptions& opti
       }
       data.push_back(std::move(c));
     }
-    if (!(mo.plate_noise_n > 0.0) && !plates.empty()) {
-      double sum_sq = 0.0;
-      for (const auto& p : plates) sum_sq += p.noise_n * p.noise_n;
-      mo.plate_noise_n = std::sqrt(sum_sq / static_cast<double>(plates.size())) / correction.gain;
-    }
     // The run's own Model 4 fit is the baseline when the plate needed no
     // correction (the same data, the same options): it is not refitted.
     const fitting::FitResult* run_fit = state.fit(mo.fit.model);

@@ -165,6 +165,19 @@ std::pair<double, double> stiffness_bounds(const FitOptions& o, double k_eff) {
   return {lo, hi};
 }
 
+FreeParam linear_param(const std::string& name, double scale, double lower, double upper, double start_lo,
+                       double start_hi) {
+  FreeParam f;
+  f.name = name;
+  f.transform = Transform::Linear;
+  f.scale = scale;
+  f.lower = lower;
+  f.upper = upper;
+  f.start_lo = start_lo;
+  f.start_hi = start_hi;
+  return f;
+}
+
 ParamSpace make_space(const FitOptions& o, double k_eff) {
   ParamSpace s;
   s.model = o.model;
@@ -181,17 +194,9 @@ ParamSpace make_space(const FitOptions& o, double k_eff) {
     if (name[0] == 'k') s.free.push_back(log_param(name, k_lo, k_hi));
     else s.free.push_back(log_param(name, o.r_min_n_s_m, o.r_max_n_s_m));
   }
-  if (o.model == ModelKind::Model2 && o.m_eff_kg < 0.0) {
-    FreeParam f;
-    f.name = "m_eff_kg";
-    f.transform = Transform::Linear;
-    f.scale = 1.0;
-    f.lower = 0.01;
-    f.upper = std::max(s.total_mass, 0.02);
-    f.start_lo = 0.1 * s.total_mass;
-    f.start_hi = 0.6 * s.total_mass;
-    s.free.push_back(f);
-  }
+  if (o.model == ModelKind::Model2 && o.m_eff_kg < 0.0)
+    s.free.push_back(
+        linear_param("m_eff_kg", 1.0, 0.01, std::max(s.total_mass, 0.02), 0.1 * s.total_mass, 0.6 * s.total_mass));
   if (o.masses_free && (shape == ModelKind::Model3 || shape == ModelKind::Model4)) {
     FreeParam f;
     f.name = "m1_fraction";
@@ -204,15 +209,7 @@ ParamSpace make_space(const FitOptions& o, double k_eff) {
   }
   for (const auto& name : o.free_effects) {
     if (name == "k1_cubic_n_m3") {
-      FreeParam f;
-      f.name = name;
-      f.transform = Transform::Linear;
-      f.scale = 1e7;
-      f.lower = 0.0;
-      f.upper = 1e3;
-      f.start_lo = 0.0;
-      f.start_hi = 5.0;
-      s.free.push_back(f);
+      s.free.push_back(linear_param(name, 1e7, 0.0, 1e3, 0.0, 5.0));
     } else if (name == "r1_unload_n_s_m") {
       s.free.push_back(log_param(name, o.r_min_n_s_m, o.r_max_n_s_m));
     } else if (name == "maxwell_k_n_m") {
@@ -220,15 +217,7 @@ ParamSpace make_space(const FitOptions& o, double k_eff) {
     } else if (name == "maxwell_tau_s") {
       s.free.push_back(log_param(name, 1e-3, 0.3));
     } else if (name == "k1_unload_ratio") {
-      FreeParam f;
-      f.name = name;
-      f.transform = Transform::Linear;
-      f.scale = 1.0;
-      f.lower = 0.0;
-      f.upper = 0.9;
-      f.start_lo = 0.02;
-      f.start_hi = 0.4;
-      s.free.push_back(f);
+      s.free.push_back(linear_param(name, 1.0, 0.0, 0.9, 0.02, 0.4));
     } else {
       throw Error(fmt::format("fit: '{}' is not an effect parameter that can be fitted", name));
     }
