@@ -175,15 +175,32 @@ DiagnosisResult diagnose(const SessionState& state, const DiagnosisOptions& opti
   }
 
   // ---- sync ----
+  // Judged first on the contact instants (they align video and force for
+  // the plate stage); its verdict is written after the mat stage, which may
+  // re-judge it on the fitted contacts (below).
   double offset_s = 0.0;
+  std::optional<SyncDiagnosis> sync;
+  std::vector<trial::TrialResult> sync_results;
   if (options.sync && gate("sync")) {
-    std::vector<trial::TrialResult> results;
-    for (const auto& t : state.trials) results.push_back(t.result);
-    const SyncDiagnosis sd = diagnose_sync(results, options.sync_stage);
-    append(result, sd);
-    offset_s = sd.offset_s;
-    if (!sd.remaining.empty()) unresolved = "sync";
+    for (const auto& t : state.trials) sync_results.push_back(t.result);
+    sync = diagnose_sync(sync_results, options.sync_stage);
+    offset_s = sync->offset_s;
+    if (!sync->remaining.empty()) {
+      unresolved = "sync";
+      append(result, *sync);
+      sync.reset();
+    }
   }
+
+  // Sync and plate verdicts go into the result in stage order once the mat
+  // stage has had its say on sync (or at once when a later stage will not run).
+  std::optional<ForceplateDiagnosis> plate;
+  auto flush = [&] {
+    if (sync) append(result, *sync);
+    if (plate) append(result, *plate);
+    sync.reset();
+    plate.reset();
+  };
 
   // ---- force plate ----
   PlateCorrection correction;
@@ -193,10 +210,12 @@ DiagnosisResult diagnose(const SessionState& state, const DiagnosisOptions& opti
     fo.impactor_mass_kg = state.impactor_mass_kg;
     fo.gravity_m_s2 = state.gravity_m_s2;
     if (!plates.empty()) {
-      const ForceplateDiagnosis fd = diagnose_forceplate(plates, fo);
-      append(result, fd);
-      correction = fd.correction;
-      if (!fd.remaining.empty()) unresolved = "forceplate";
+      plate = diagnose_forceplate(plates, fo);
+      correction = plate->correction;
+      if (!plate->remaining.empty()) {
+        unresolved = "forceplate";
+        flush();
+      }
     }
   }
 
@@ -222,10 +241,40 @@ DiagnosisResult diagnose(const SessionState& state, const DiagnosisOptions& opti
       mo.baseline = run_fit;
     if (!data.empty()) {
       const MatDiagnosis md = diagnose_mat(data, mo);
+      // The clock offset once more, from each trial's contact instant as the
+      // final mat model places it: the contact-instant estimate carries the
+      // plate's onset lag, which depends on the mat (its layer masses, how
+      // fast it stiffens), and a mat the baseline got wrong reads as a
+      // clock offset. The fitted contact has no onset lag.
+      if (sync && md.fit_after) {
+        std::vector<trial::TrialResult> fitted = sync_results;
+        int n = 0;
+        for (auto& r : fitted) {
+          for (const auto& t : md.fit_after->trials) {
+            if (t.id != r.id || !std::isfinite(t.contact_shift_se_s) || !std::isfinite(r.video_offset_s)) continue;
+            r.video_offset_s -= t.contact_shift_s;
+            ++n;
+          }
+        }
+        if (n >= 2) {
+          SyncStageOptions so = options.sync_stage;
+          so.onset_lag_s = 0.0;
+          SyncDiagnosis refit = diagnose_sync(fitted, so);
+          if (refit.remaining.empty()) {
+            refit.notes.push_back(fmt::format(
+                "sync: judged on the contact instants the final mat model fits ({} trials; the plate-onset "
+                "estimate gave {:.2f} ms and was used to align the plate stage)",
+                n, 1e3 * sync->offset_s));
+            sync = std::move(refit);
+          }
+        }
+      }
+      flush();
       append(result, md);
       if (!md.effects.empty() && md.fit_after) result.mat_fit = md.fit_after;
     }
   }
+  flush();
   return result;
 }
 

@@ -341,7 +341,7 @@ struct MatStageOptions {
   // start. Fewer is faster but can stay in the baseline's basin: Model 4's
   // springs in series trade places, and an effect's optimum may lie in the
   // other basin.
-  int refit_starts = 4;
+  int refit_starts = 0;
   // The baseline fit when the caller already has it (the main run's Model 4):
   // it is reused, not refitted.
   const fitting::FitResult* baseline = nullptr;
@@ -353,6 +353,9 @@ struct MatStageOptions {
   // prediction from one trial carries that trial's parameter error too).
   double unexplained_noise_sd = 3.0;
   int max_effects = 3;   // forward selection rounds
+  // When no single candidate passes a round, pairs of candidates are refitted:
+  // each of this many best singles (by held-out error) with every other.
+  int pairs = 2;
   double wald_sd = 3.0;  // an effect's parameter must stand this many SEs from "absent"
   int threads = 2;       // candidate refits in parallel
 };

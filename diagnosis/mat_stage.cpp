@@ -60,11 +60,12 @@ std::vector<EffectCandidate> library(const std::vector<std::string>& wanted) {
 // start covers the rest): small but not zero, so the derivative is alive.
 void seed_effect(MatParams& p, const EffectCandidate& c) {
   for (const auto& f : c.free) {
-    if (f == "k1_cubic_n_m3") p.k1_cubic_n_m3 = 1e5;
-    if (f == "k1_unload_ratio") p.k1_unload_ratio = 0.05;
-    if (f == "r1_unload_n_s_m") p.r1_unload_n_s_m = std::max(p.r1_n_s_m, 10.0);
-    if (f == "maxwell_k_n_m") p.maxwell_k_n_m = std::max(0.2 * p.k1_n_m, 1e3);
-    if (f == "maxwell_tau_s") p.maxwell_tau_s = 0.02;
+    // Only where absent: a start that already holds the effect keeps it.
+    if (f == "k1_cubic_n_m3" && p.k1_cubic_n_m3 == 0.0) p.k1_cubic_n_m3 = 1e5;
+    if (f == "k1_unload_ratio" && p.k1_unload_ratio == 0.0) p.k1_unload_ratio = 0.05;
+    if (f == "r1_unload_n_s_m" && p.r1_unload_n_s_m < 0.0) p.r1_unload_n_s_m = std::max(p.r1_n_s_m, 10.0);
+    if (f == "maxwell_k_n_m" && p.maxwell_k_n_m <= 0.0) p.maxwell_k_n_m = std::max(0.2 * p.k1_n_m, 1e3);
+    if (f == "maxwell_tau_s" && p.maxwell_tau_s <= 0.0) p.maxwell_tau_s = 0.02;
   }
 }
 
@@ -157,13 +158,74 @@ TrainingFit training_of(const fitting::FitResult& fit) {
   return t;
 }
 
+// A refit: one or two library candidates added to the current model.
 struct Trial {
-  const EffectCandidate* candidate = nullptr;
+  std::vector<const EffectCandidate*> adds;
   fitting::FitOptions options;
   std::optional<fitting::FitResult> fit;
   HeldOutErrors errors;
   std::string failure;
+  std::string names() const {
+    std::string s;
+    for (const auto* c : adds) s += (s.empty() ? "" : " + ") + c->name;
+    return s;
+  }
+  std::string variants() const {
+    std::string s;
+    for (const auto* c : adds) s += (s.empty() ? "" : "; ") + c->variant;
+    return s;
+  }
 };
+
+// The current model with `adds` freed, started from the current optimum
+// (the effects seeded small) plus `starts` screened starts.
+Trial make_trial(const fitting::FitOptions& current_options, const fitting::FitResult& current,
+                 std::vector<const EffectCandidate*> adds, int starts) {
+  Trial t;
+  t.adds = std::move(adds);
+  t.options = current_options;
+  t.options.initial = current.params;
+  for (const auto* c : t.adds) {
+    for (const auto& f : c->free) t.options.free_effects.push_back(f);
+    if (c->masses) t.options.masses_free = true;
+    seed_effect(t.options.initial, *c);
+  }
+  if (starts > 0) {
+    t.options.starts = starts;
+    t.options.every_ordering = false;  // near the current optimum: its ordering and the best screened starts
+  } else {
+    t.options.initial = MatParams{};  // the fitter's own full multi-start (see MatStageOptions::refit_starts)
+  }
+  t.options.threads = 1;
+  t.options.train_ids = current.train_ids;
+  return t;
+}
+
+// Refits every trial, `threads` at a time (each fit is one thread).
+void run_trials(const std::vector<fitting::TrialData>& acc, std::vector<Trial>& tries, int threads) {
+  std::atomic<size_t> next{0};
+  auto worker = [&] {
+    for (size_t i; (i = next++) < tries.size();) {
+      try {
+        tries[i].fit = fitting::fit(acc, tries[i].options);
+        tries[i].errors = held_out_errors(*tries[i].fit, acc, tries[i].options);
+      } catch (const std::exception& e) {
+        tries[i].failure = e.what();
+      }
+    }
+  };
+  std::vector<std::thread> pool;
+  for (int w = 1; w < std::max(1, threads); ++w) pool.emplace_back(worker);
+  worker();
+  for (auto& th : pool) th.join();
+}
+
+// Per held-out trial, both channels in one number: sqrt(force^2 + travel^2)
+// in noise SDs (what a pair is judged on against its members).
+Eigen::VectorXd combined_per_trial(const HeldOutErrors& e) {
+  if (e.force_sd.size() != e.impactor_sd.size()) return e.force_sd;
+  return (e.force_sd.array().square() + e.impactor_sd.array().square()).sqrt();
+}
 
 std::string fmt_value(double v) { return fmt::format("{:.4g}", v); }
 
@@ -222,122 +284,193 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
   const auto cands = library(options.candidates);
   std::vector<bool> used(cands.size(), false);
 
+  // The verdict on a refit against the current model: empty when it passes.
+  auto verdict = [&](const Trial& t, const TrainingFit& small) -> std::string {
+    if (!t.fit) return "refit failed: " + t.failure;
+    const HeldOutErrors& a = t.errors;
+    const double f0 = before.mean_force_sd(), k0 = before.mean_impactor_sd();
+    const double f1 = a.mean_force_sd(), k1 = a.mean_impactor_sd();
+    // Paired over the held-out trials, on the channel(s) above the noise.
+    bool falls = false, worse = false;
+    for (int ch = 0; ch < 2; ++ch) {
+      const Eigen::VectorXd& b = ch == 0 ? before.force_sd : before.impactor_sd;
+      const Eigen::VectorXd& af = ch == 0 ? a.force_sd : a.impactor_sd;
+      const double e0 = ch == 0 ? f0 : k0, e1 = ch == 0 ? f1 : k1;
+      if (b.size() != af.size()) continue;
+      if (e0 > gate) {
+        const PairedImprovement pi =
+            paired_improvement(b, af, options.decision.t_critical, options.decision.min_relative, 0.0);
+        if (pi.significant) falls = true;
+      }
+      if (e1 > std::max(gate, e0 * (1.0 + options.decision.min_relative))) worse = true;
+    }
+    const TrainingFit large = training_of(*t.fit);
+    const ModelComparison mc = compare_models(small.rss, small.k, large.rss, large.k, large.n, large.rho1,
+                                              options.criterion, options.decision.ic_min_drop);
+    const std::string numbers = fmt::format(
+        "held-out force {:.2f} -> {:.2f} noise SDs, impactor travel {:.2f} -> {:.2f} noise SDs; {} change {:+.1f} "
+        "on N_eff = {:.0f}",
+        f0, f1, k0, k1, criterion_name(options.criterion), mc.delta, mc.n_eff);
+    // Wald: the layer masses must stand beyond wald_sd SE from the declared
+    // split (the other effects' SEs, scaled by a residual the candidate may
+    // only partly explain, are not a test).
+    std::string wald;
+    for (const auto* c : t.adds) {
+      if (!c->masses) continue;
+      for (const auto& e : t.fit->estimates) {
+        if (e.name != "m1_kg") continue;
+        if (!(std::abs(e.value - base.m1_kg) > options.wald_sd * e.se))
+          wald = fmt::format("{} = {} is within {} SE ({}) of {} (absent)", e.name, fmt_value(e.value),
+                             options.wald_sd, fmt_value(e.se), fmt_value(base.m1_kg));
+      }
+    }
+    // The effect's own parameters must be set by the data, not by the box;
+    // and a Maxwell arm relaxing within two plate samples cannot be told
+    // from element 1's own damping (it acts as a dashpot of k tau).
+    std::string own;
+    for (const auto* c : t.adds)
+      for (const auto& e : t.fit->estimates) {
+        if (std::find(c->free.begin(), c->free.end(), e.name) == c->free.end()) continue;
+        const bool at_bound = std::any_of(t.fit->warnings.begin(), t.fit->warnings.end(), [&](const std::string& w) {
+          return w.rfind(e.name + " ", 0) == 0 && w.find("its bound") != std::string::npos;
+        });
+        if (at_bound) own = fmt::format("{} = {} sits at its bound: the box, not the data, sets it", e.name,
+                                        fmt_value(e.value));
+        if (e.name == "maxwell_tau_s" && e.value < 2.0 * a.dt_s)
+          own = fmt::format("maxwell_tau_s = {} ms relaxes within two plate samples ({} ms): a dashpot, not a "
+                            "separate rate dependence",
+                            fmt_value(1e3 * e.value), fmt_value(2e3 * a.dt_s));
+      }
+    if (!falls) return "held-out error does not fall beyond noise (" + numbers + ")";
+    if (!own.empty()) return own;
+    if (!wald.empty()) return wald;
+    if (worse) return "the other channel gets worse (" + numbers + ")";
+    if (!mc.larger_supported) return "not supported by the information criterion (" + numbers + ")";
+    return "";
+  };
+
   for (int round = 0; round < options.max_effects; ++round) {
     const double f0 = before.mean_force_sd(), k0 = before.mean_impactor_sd();
     if (f0 <= gate && k0 <= gate) break;  // at the noise floor: nothing left to explain
 
-    // Refit every candidate not yet added (in parallel: each fit is one thread).
+    // Refit every candidate not yet added.
     std::vector<Trial> tries;
-    for (size_t c = 0; c < cands.size(); ++c) {
-      if (used[c]) continue;
-      Trial t;
-      t.candidate = &cands[c];
-      t.options = current_options;
-      for (const auto& f : cands[c].free) t.options.free_effects.push_back(f);
-      if (cands[c].masses) t.options.masses_free = true;
-      t.options.initial = current.params;
-      seed_effect(t.options.initial, cands[c]);
-      t.options.starts = options.refit_starts;
-      t.options.every_ordering = false;  // near the current optimum: its ordering and the best screened starts
-      t.options.threads = 1;
-      t.options.train_ids = current.train_ids;
-      tries.push_back(std::move(t));
-    }
-    std::atomic<size_t> next{0};
-    auto worker = [&] {
-      for (size_t i; (i = next++) < tries.size();) {
-        try {
-          tries[i].fit = fitting::fit(acc, tries[i].options);
-          tries[i].errors = held_out_errors(*tries[i].fit, acc, tries[i].options);
-        } catch (const std::exception& e) {
-          tries[i].failure = e.what();
-        }
-      }
-    };
-    std::vector<std::thread> pool;
-    for (int w = 1; w < std::max(1, options.threads); ++w) pool.emplace_back(worker);
-    worker();
-    for (auto& th : pool) th.join();
+    for (size_t c = 0; c < cands.size(); ++c)
+      if (!used[c]) tries.push_back(make_trial(current_options, current, {&cands[c]}, options.refit_starts));
+    run_trials(acc, tries, options.threads);
 
     const TrainingFit small = training_of(current);
     int best = -1;
     for (size_t i = 0; i < tries.size(); ++i) {
-      Trial& t = tries[i];
-      const EffectCandidate& c = *t.candidate;
-      if (!t.fit) {
-        out.rejected.push_back({"mat", c.name, "refit failed: " + t.failure});
-        continue;
-      }
-      const HeldOutErrors& a = t.errors;
-      const double f1 = a.mean_force_sd(), k1 = a.mean_impactor_sd();
-      // Paired over the held-out trials, on the channel(s) above the noise.
-      std::string why;
-      bool falls = false, worse = false;
-      for (int ch = 0; ch < 2; ++ch) {
-        const Eigen::VectorXd& b = ch == 0 ? before.force_sd : before.impactor_sd;
-        const Eigen::VectorXd& af = ch == 0 ? a.force_sd : a.impactor_sd;
-        const double e0 = ch == 0 ? f0 : k0, e1 = ch == 0 ? f1 : k1;
-        if (b.size() != af.size()) continue;
-        if (e0 > gate) {
-          const PairedImprovement pi =
-              paired_improvement(b, af, options.decision.t_critical, options.decision.min_relative, 0.0);
-          if (pi.significant) falls = true;
-        }
-        if (e1 > std::max(gate, e0 * (1.0 + options.decision.min_relative))) worse = true;
-      }
-      const TrainingFit large = training_of(*t.fit);
-      const ModelComparison mc = compare_models(small.rss, small.k, large.rss, large.k, large.n, large.rho1,
-                                                options.criterion, options.decision.ic_min_drop);
-      const std::string numbers = fmt::format(
-          "held-out force {:.2f} -> {:.2f} noise SDs, impactor travel {:.2f} -> {:.2f} noise SDs; {} change {:+.1f} "
-          "on N_eff = {:.0f}",
-          f0, f1, k0, k1, criterion_name(options.criterion), mc.delta, mc.n_eff);
-      // Wald: the effect's own parameter must stand beyond wald_sd SE from
-      // the value that means "absent", or the effect is not there.
-      std::string wald;
-      for (const auto& e : t.fit->estimates) {
-        double off = std::numeric_limits<double>::quiet_NaN();
-        // Only where the SE means something whatever the misfit: the layer
-        // masses' declared split (the other effects' SEs, scaled by a
-        // residual the candidate may only partly explain, are not a test).
-        if (c.masses && e.name == "m1_kg") off = base.m1_kg;
-        const bool mine = std::find(c.free.begin(), c.free.end(), e.name) != c.free.end() || (c.masses && e.name == "m1_kg");
-        if (!mine || !std::isfinite(off)) continue;
-        if (!(std::abs(e.value - off) > options.wald_sd * e.se))
-          wald = fmt::format("{} = {} is within {} SE ({}) of {} (absent)", e.name, fmt_value(e.value), options.wald_sd,
-                             fmt_value(e.se), fmt_value(off));
-      }
-      if (!falls) why = "held-out error does not fall beyond noise (" + numbers + ")";
-      else if (!wald.empty()) why = wald;
-      else if (worse) why = "the other channel gets worse (" + numbers + ")";
-      else if (!mc.larger_supported) why = "not supported by the information criterion (" + numbers + ")";
+      const std::string why = verdict(tries[i], small);
       if (!why.empty()) {
-        out.rejected.push_back({"mat", c.name, c.variant + ": " + why});
+        out.rejected.push_back({"mat", tries[i].names(), tries[i].variants() + ": " + why});
         continue;
       }
-      if (best < 0 || a.combined() < tries[best].errors.combined()) best = static_cast<int>(i);
+      if (best < 0 || tries[i].errors.combined() < tries[best].errors.combined()) best = static_cast<int>(i);
+    }
+
+    // No single effect passes: two effects present together can each move
+    // one channel the wrong way on its own (a lower unloading stiffness
+    // shortens the rebound the Maxwell arm lengthens). Pairs are tried with
+    // the singles that brought the most down, and a pair is kept only when
+    // it passes the same test and beats each of its members alone.
+    std::vector<Trial> pairs;
+    if (best < 0 && options.pairs > 0) {
+      std::vector<size_t> order;
+      for (size_t i = 0; i < tries.size(); ++i)
+        if (tries[i].fit && tries[i].errors.combined() < before.combined()) order.push_back(i);
+      std::sort(order.begin(), order.end(),
+                [&](size_t a, size_t b) { return tries[a].errors.combined() < tries[b].errors.combined(); });
+      if (order.size() > static_cast<size_t>(options.pairs)) order.resize(options.pairs);
+      std::vector<std::pair<const EffectCandidate*, const EffectCandidate*>> seen;
+      for (size_t lead : order) {
+        const EffectCandidate* a = tries[lead].adds.front();
+        for (size_t c = 0; c < cands.size(); ++c) {
+          const EffectCandidate* b = &cands[c];
+          if (used[c] || b->name == a->name) continue;
+          const bool dup = std::any_of(seen.begin(), seen.end(), [&](const auto& p) {
+            return (p.first == a && p.second == b) || (p.first == b && p.second == a);
+          });
+          if (dup) continue;
+          seen.emplace_back(a, b);
+          pairs.push_back(make_trial(current_options, tries[lead].fit ? *tries[lead].fit : current, {a, b},
+                                     options.refit_starts));
+        }
+      }
+      run_trials(acc, pairs, options.threads);
+      for (size_t i = 0; i < pairs.size(); ++i) {
+        Trial& t = pairs[i];
+        std::string why = verdict(t, small);
+        if (why.empty()) {
+          // Each member must matter: the pair against each member alone.
+          for (const auto* m : t.adds) {
+            const auto it = std::find_if(tries.begin(), tries.end(),
+                                         [&](const Trial& s) { return s.adds.front() == m; });
+            if (it == tries.end() || !it->fit) continue;
+            const Eigen::VectorXd alone = combined_per_trial(it->errors), both = combined_per_trial(t.errors);
+            if (alone.size() != both.size()) continue;
+            const PairedImprovement pi =
+                paired_improvement(alone, both, options.decision.t_critical, options.decision.min_relative, 0.0);
+            if (!pi.significant)
+              why = fmt::format("no better than {} alone (held-out {:.2f} -> {:.2f} noise SDs)", m->name,
+                                pi.mean_before, pi.mean_after);
+          }
+        }
+        if (!why.empty()) {
+          out.rejected.push_back({"mat", t.names(), "together: " + t.variants() + ": " + why});
+          continue;
+        }
+        if (best < 0 || t.errors.combined() < pairs[best].errors.combined()) best = static_cast<int>(i);
+      }
     }
     if (best < 0) break;
-    Trial& kept = tries[best];
-    const EffectCandidate& c = *kept.candidate;
-    Effect eff;
-    eff.stage = "mat";
-    eff.name = c.name;
-    eff.error_before = error_set(before);
-    eff.error_after = error_set(kept.errors);
-    eff.estimate = estimate_of(*kept.fit, c);
-    eff.evidence = fmt::format(
-        "{}: {}; held-out force RMS {:.2f} -> {:.2f} noise SDs ({:.2f} -> {:.2f} % of peak), impactor travel "
-        "{:.2f} -> {:.2f} noise SDs ({:.2f} -> {:.2f} mm) over {} held-out trials",
-        c.variant, estimate_text(*kept.fit, c), before.mean_force_sd(), kept.errors.mean_force_sd(),
-        before.force_pct_peak.mean(), kept.errors.force_pct_peak.mean(), before.mean_impactor_sd(),
-        kept.errors.mean_impactor_sd(), before.impactor_mm.mean(), kept.errors.impactor_mm.mean(),
-        kept.errors.ids.size());
-    out.effects.push_back(eff);
-    // Drop the rejections of this round for the kept name (they were the
-    // other variants): later rounds re-judge what remains.
-    for (size_t c2 = 0; c2 < cands.size(); ++c2)
-      if (&cands[c2] == kept.candidate || cands[c2].name == c.name) used[c2] = true;
+    Trial& kept = pairs.empty() ? tries[best] : pairs[best];
+
+    // The kept model from the fitter's full multi-start (every spring
+    // ordering): the refit above started near a model that lacked the
+    // effect, and the next round builds on this optimum.
+    {
+      fitting::FitOptions full = kept.options;
+      // Not warm-started: a start already near the screened optimum cuts the
+      // other basins' runs after the fitter's first stage.
+      full.initial = MatParams{};
+      full.starts = base.starts;
+      full.every_ordering = base.every_ordering;
+      full.threads = std::max(1, options.threads);
+      try {
+        fitting::FitResult polished = fitting::fit(acc, full);
+        if (polished.cost < kept.fit->cost) {
+          kept.errors = held_out_errors(polished, acc, full);
+          kept.fit = std::move(polished);
+        }
+      } catch (const std::exception& e) {
+        out.notes.push_back(std::string("mat: the multi-start refit of the kept model failed (") + e.what() +
+                            "); the screened refit is kept");
+      }
+    }
+
+    for (const auto* c : kept.adds) {
+      Effect eff;
+      eff.stage = "mat";
+      eff.name = c->name;
+      eff.error_before = error_set(before);
+      eff.error_after = error_set(kept.errors);
+      eff.estimate = estimate_of(*kept.fit, *c);
+      eff.evidence = fmt::format(
+          "{}: {}{}; held-out force RMS {:.2f} -> {:.2f} noise SDs ({:.2f} -> {:.2f} % of peak), impactor travel "
+          "{:.2f} -> {:.2f} noise SDs ({:.2f} -> {:.2f} mm) over {} held-out trials",
+          c->variant, estimate_text(*kept.fit, *c),
+          kept.adds.size() > 1 ? "; added together with " + kept.names() + " (neither passes alone)" : "",
+          before.mean_force_sd(), kept.errors.mean_force_sd(), before.force_pct_peak.mean(),
+          kept.errors.force_pct_peak.mean(), before.mean_impactor_sd(), kept.errors.mean_impactor_sd(),
+          before.impactor_mm.mean(), kept.errors.impactor_mm.mean(), kept.errors.ids.size());
+      out.effects.push_back(eff);
+      // The other variants of a kept name are done with; later rounds
+      // re-judge what remains.
+      for (size_t c2 = 0; c2 < cands.size(); ++c2)
+        if (&cands[c2] == c || cands[c2].name == c->name) used[c2] = true;
+    }
     current = std::move(*kept.fit);
     current_options = kept.options;
     current_options.initial = MatParams{};

@@ -1020,7 +1020,12 @@ void covariance(const Optimum& opt, const ParamSpace& space, const FitOptions& o
       e.identifiable = false;
       warnings->push_back(fmt::format("{} is not pinned down by the data (relative SE {:.2g})", e.name, e.rel_se));
     }
-    const double margin = 1e-3 * (f.upper - f.lower);
+    // Within a thousandth of the span a parameter is searched over (not of
+    // its box: k1_cubic's box reaches 1e10 N/m^3, so a tenth of a percent of
+    // it is 1e7, above the stiffening mats have).
+    const double span = f.start_hi > f.start_lo ? std::min(f.upper - f.lower, f.start_hi - f.start_lo)
+                                                : f.upper - f.lower;
+    const double margin = 1e-3 * span;
     if (opt.u[j] <= f.lower + margin || opt.u[j] >= f.upper - margin) {
       // The data push it out of the physically sensible box: the box, not
       // the data, sets its value.
