@@ -428,9 +428,9 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
     Trial& kept = pairs.empty() ? tries[best] : pairs[best];
 
     // The kept model from the fitter's full multi-start (every spring
-    // ordering): the refit above started near a model that lacked the
-    // effect, and the next round builds on this optimum.
-    {
+    // ordering) when the refit above was a screened one near a model that
+    // lacked the effect: the next round builds on this optimum.
+    if (options.refit_starts > 0) {
       fitting::FitOptions full = kept.options;
       // Not warm-started: a start already near the screened optimum cuts the
       // other basins' runs after the fitter's first stage.
