@@ -358,7 +358,7 @@ struct MatStageOptions {
   int max_effects = 3;   // forward selection rounds
   // When no single candidate passes a round, pairs of candidates are refitted:
   // each of this many best singles (by held-out error) with every other.
-  int pairs = 2;
+  int pairs = 1;
   double wald_sd = 3.0;  // an effect's parameter must stand this many SEs from "absent"
   int threads = 2;       // candidate refits in parallel
 };
