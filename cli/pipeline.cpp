@@ -230,12 +230,8 @@ fitting::FitOptions fit_options(const Manifest& manifest, fitting::ModelKind mod
   } else if (layers.size() == 1) {
     options.m1_kg = options.m2_kg = layers.front().mass_kg / 2;
   }
-  if (model == fitting::ModelKind::Model5) {
-    const auto geometry = model5_geometry(manifest);
-    options.simulator = [geometry](const fitting::MatParams& p, const fitting::Impact& impact) {
-      return fitting::simulate_model5(p, geometry, impact);
-    };
-  }
+  // Model 5's mat and face (the fitter differentiates it exactly).
+  if (model == fitting::ModelKind::Model5) options.model5_geometry = model5_geometry(manifest);
   return options;
 }
 
