@@ -175,6 +175,12 @@ struct Model5Geometry {
   // lowered safely).
   double max_step_s = 1e-4;
   double stability_fraction = 0.8;
+  // Accuracy on an overdamped element's creep (rate lambda, see the header
+  // comment): steps with lambda dt <= creep_step, for creeps slower than
+  // creep_fast_1_s (faster ones settle within half a millisecond and the
+  // stiffly accurate stages give their quasi-static limit unresolved).
+  double creep_step = 0.07;
+  double creep_fast_1_s = 2000.0;
 };
 
 // Everything Model 5 can say about one impact.
