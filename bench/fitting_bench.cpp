@@ -103,13 +103,14 @@ void BM_FitModel5WarmStart(benchmark::State& state) {
   std::vector<TrialData> trials;
   std::mt19937 rng(5);
   std::normal_distribution<double> nd(0.0, 1.0);
+  char id = '1';
   for (double v : {4.3, 4.8, 5.25, 5.75, 6.5}) {
     Impact imp;
     imp.velocity_m_s = v;
     imp.duration_s = 0.15;
     const Simulation s = simulate_model5(truth, Model5Geometry{}, imp);
     TrialData t;
-    t.id = "v" + std::to_string(v);
+    t.id = std::string("trial") + id++;
     t.impact_velocity_m_s = v;
     t.t_s = s.t_s;
     t.grf_n = s.grf_n;

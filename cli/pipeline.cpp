@@ -324,6 +324,7 @@ std::vector<std::string> fit_models(diagnosis::SessionState& state, const Manife
       fit_opts.initial = fits[k4]->params;
       fit_opts.starts = 1;
       fit_opts.max_iterations = 30;
+      fit_opts.first_stage_iterations = 30;  // one run of 30 iterations (no second stage)
     }
     fit_one(k, fit_opts);
   };

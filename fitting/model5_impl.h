@@ -286,8 +286,11 @@ class Integrator {
   // one instant, decides: with stiff damping the force at an instant
   // carries the unresolved fast transients, the impulse does not.
   void step(double h) {
+    // Only a pressed cell can be released: with none, no state is saved.
+    bool pressed = false;
+    for (int j : L_.face) pressed = pressed || in_[j];
     for (int iter = 0;; ++iter) {
-      const bool may_redo = iter < kMaxRedo;
+      const bool may_redo = pressed && iter < kMaxRedo;
       if (may_redo) save();
       advance(h);
       if (!may_redo) break;
