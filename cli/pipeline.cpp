@@ -306,7 +306,8 @@ std::vector<std::string> fit_models(diagnosis::SessionState& state, const Manife
   };
   // Model 4 first (the canonical fit), then Model 5 warm-started from its
   // optimum (their parameters mean the same thing) with one start and few
-  // iterations, on one worker; Models 1-3 on the others meanwhile. No model
+  // iterations, on one worker (its exact derivatives split over
+  // FitOptions::threads); Models 1-3 on the others meanwhile. No model
   // waits for a core another has left idle.
   size_t k4 = models.size();
   for (size_t k = 0; k < models.size(); ++k)

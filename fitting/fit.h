@@ -60,7 +60,8 @@
 // impact velocity (only its clock shift is fitted); key characteristics
 // (fitting/characteristics.h) for measured and simulated curves; optional
 // leave-one-trial-out; sensitivity of the peak force to +-10 % on each
-// stiffness and damping.
+// stiffness and damping (from the exact derivatives: the peak's elasticity
+// carried as a power law; a custom simulator is re-run instead).
 //
 // Table mode: when only per-trial summaries exist (velocity, maximum
 // deformation, peak force: the paper's Table 1), fit_table matches the
