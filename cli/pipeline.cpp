@@ -239,12 +239,8 @@ fitting::FitOptions fit_options(const Manifest& manifest, fitting::ModelKind mod
   } else if (layers.size() == 1) {
     options.m1_kg = options.m2_kg = layers.front().mass_kg / 2;
   }
-  if (model == fitting::ModelKind::Model5) {
-    const auto geometry = model5_geometry(manifest);
-    options.simulator = [geometry](const fitting::MatParams& p, const fitting::Impact& impact) {
-      return fitting::simulate_model5(p, geometry, impact);
-    };
-  }
+  // Model 5's mat and face (the fitter differentiates it exactly).
+  if (model == fitting::ModelKind::Model5) options.model5_geometry = model5_geometry(manifest);
   return options;
 }
 
@@ -319,7 +315,8 @@ std::vector<std::string> fit_models(diagnosis::SessionState& state, const Manife
   };
   // Model 4 first (the canonical fit), then Model 5 warm-started from its
   // optimum (their parameters mean the same thing) with one start and few
-  // iterations, on one worker; Models 1-3 on the others meanwhile. No model
+  // iterations, on one worker (its exact derivatives split over
+  // FitOptions::threads); Models 1-3 on the others meanwhile. No model
   // waits for a core another has left idle.
   size_t k4 = models.size();
   for (size_t k = 0; k < models.size(); ++k)
@@ -337,6 +334,7 @@ std::vector<std::string> fit_models(diagnosis::SessionState& state, const Manife
       fit_opts.initial = fits[k4]->params;
       fit_opts.starts = 1;
       fit_opts.max_iterations = 30;
+      fit_opts.first_stage_iterations = 30;  // one run of 30 iterations (no second stage)
     }
     fit_one(k, fit_opts);
   };

@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <exception>
 #include <memory>
 #include <numeric>
 #include <random>
@@ -19,6 +20,7 @@
 #include <utility>
 
 #include "core/error.h"
+#include "fitting/model5_impl.h"
 #include "fitting/models_impl.h"
 
 namespace dropfit::fitting {
@@ -420,7 +422,7 @@ struct AutoTrialCost {
     const detail::ParamsT<T> pt = space->to_params(u[0]);
     detail::Trace<T> tr;
     detail::run_model<T>(layout, pt, p->impact, exact, kRk4Step, p->n_grid, tr);
-    ++*evals;
+    if (evals) ++*evals;
     if (p->shifted()) fill_residuals<T>(*p, tr.grf, tr.impactor, u[1][0], res);
     else fill_residuals<T>(*p, tr.grf, tr.impactor, 0.0, res);
     for (int i = 0; i < p->n_residuals(); ++i)
@@ -463,6 +465,14 @@ detail::Trace<double> simulate_window(const Prepared& p, const ParamSpace& space
     tr.surface = vec(s.surface_m);
     tr.layer1 = vec(s.layer1_m);
     tr.layer2 = vec(s.layer2_m);
+  } else if (space.model == ModelKind::Model5) {
+    const Simulation s = simulate_model5(mp, o.model5_geometry, p.impact);
+    auto vec = [](const Eigen::VectorXd& v) { return std::vector<double>(v.data(), v.data() + v.size()); };
+    tr.grf = vec(s.grf_n);
+    tr.impactor = vec(s.impactor_m);
+    tr.surface = vec(s.surface_m);
+    tr.layer1 = vec(s.layer1_m);
+    tr.layer2 = vec(s.layer2_m);
   } else {
     const ModelKind shape = space.model;
     const detail::Layout layout = detail::layout_for(shape, shape == ModelKind::Model2 && mp.m_eff_kg <= 0.0);
@@ -473,7 +483,9 @@ detail::Trace<double> simulate_window(const Prepared& p, const ParamSpace& space
   return tr;
 }
 
-// The Ceres cost of one trial through a simulate callback (Model 5): model
+void shift_jacobian(const Prepared& p, const std::vector<double>& grf, double shift, double* out);
+
+// The Ceres cost of one trial through a simulate callback (a user's model): model
 // parameters by central differences, the clock shift analytically (the
 // simulation does not depend on it).
 class NumericTrialCost : public ceres::CostFunction {
@@ -492,17 +504,8 @@ class NumericTrialCost : public ceres::CostFunction {
       try {
         const detail::Trace<double> tr = simulate_window(*p_, *space_, *o_, space_->to_mat(uu), evals_);
         fill_residuals<double>(*p_, tr.grf, tr.impactor, shift, out);
-        if (jac && p_->shifted() && jac[1] && out == res) {
-          // d res / d shift from the interpolant's derivative.
-          using J1 = ceres::Jet<double, 1>;
-          const TrialData& td = *p_->data;
-          for (size_t k = 0; k < p_->f_idx.size(); ++k) {
-            const int i = p_->f_idx[k];
-            const J1 f = on_grid(tr.grf, J1(td.t_s[i]) - J1(shift, 0), p_->h, 0.0);
-            jac[1][k] = f.v[0] * p_->f_w[k];
-          }
-          for (size_t k = p_->f_idx.size(); k < static_cast<size_t>(m); ++k) jac[1][k] = 0.0;
-        }
+        // d res / d shift from the interpolant's derivative.
+        if (jac && p_->shifted() && jac[1] && out == res) shift_jacobian(*p_, tr.grf, shift, jac[1]);
       } catch (const Error&) {
         return false;
       }
@@ -527,6 +530,118 @@ class NumericTrialCost : public ceres::CostFunction {
   }
 
  private:
+  const Prepared* p_;
+  const ParamSpace* space_;
+  const FitOptions* o_;
+  std::atomic<long>* evals_;
+};
+
+// d residual / d shift of one trial's force residuals (the simulation does
+// not depend on the shift: the interpolant's time derivative); 0 for the
+// impactor's.
+void shift_jacobian(const Prepared& p, const std::vector<double>& grf, double shift, double* out) {
+  using J1 = ceres::Jet<double, 1>;
+  const TrialData& td = *p.data;
+  for (size_t k = 0; k < p.f_idx.size(); ++k) {
+    const int i = p.f_idx[k];
+    const J1 f = on_grid(grf, J1(td.t_s[i]) - J1(shift, 0), p.h, 0.0);
+    out[k] = f.v[0] * p.f_w[k];
+  }
+  for (int k = static_cast<int>(p.f_idx.size()); k < p.n_residuals(); ++k) out[k] = 0.0;
+}
+
+// Model 5's cost of one trial with exact derivatives: its simulation
+// (fitting/model5_impl.h) in dual numbers over the free parameters, the
+// derivative directions in chunks run on up to `threads` threads (Model 5
+// is fitted from one warm start: its Levenberg-Marquardt run would leave
+// the other core idle); the clock shift analytically.
+class Model5TrialCost : public ceres::CostFunction {
+ public:
+  Model5TrialCost(const Prepared* p, const ParamSpace* space, const FitOptions* o, std::atomic<long>* evals)
+      : p_(p), space_(space), o_(o), evals_(evals) {
+    mutable_parameter_block_sizes()->push_back(space->size());
+    if (p->shifted()) mutable_parameter_block_sizes()->push_back(1);
+    set_num_residuals(p->n_residuals());
+  }
+
+  bool Evaluate(double const* const* u, double* res, double** jac) const override {
+    const int n = space_->size(), m = p_->n_residuals();
+    const double shift = p_->shifted() ? u[1][0] : 0.0;
+    std::vector<double> grf;
+    try {
+      if (jac && jac[0]) {
+        // Chunks of at most 8 directions, at least one per thread.
+        const int threads = std::max(1, o_->threads);
+        const int per = (n + std::max((n + 7) / 8, std::min(threads, n)) - 1) / std::max((n + 7) / 8, std::min(threads, n));
+        const int n_chunks = (n + per - 1) / per;
+        std::vector<std::vector<double>> grfs(n_chunks);
+        std::vector<char> ok(n_chunks, 0);
+        auto run = [&](int c) {
+          const int first = c * per, count = std::min(per, n - first);
+          try {
+            double* r = c == 0 ? res : nullptr;
+            if (per <= 3) chunk<3>(u[0], first, count, shift, r, jac[0], &grfs[c]);
+            else if (per <= 4) chunk<4>(u[0], first, count, shift, r, jac[0], &grfs[c]);
+            else chunk<8>(u[0], first, count, shift, r, jac[0], &grfs[c]);
+            ok[c] = 1;
+          } catch (const Error&) {
+          }
+        };
+        std::vector<std::thread> pool;
+        for (int c = 1; c < n_chunks; ++c) pool.emplace_back(run, c);
+        run(0);
+        for (auto& t : pool) t.join();
+        if (evals_) ++*evals_;
+        for (char k : ok)
+          if (!k) return false;
+        grf = std::move(grfs[0]);
+      } else {
+        std::vector<double> imp;
+        simulate_model5_t<double>(model5_params_t(space_->to_params<double>(u[0])), o_->model5_geometry, p_->impact,
+                                  p_->n_grid, &grf, p_->k_idx.empty() ? nullptr : &imp, nullptr);
+        if (evals_) ++*evals_;
+        fill_residuals<double>(*p_, grf, imp, shift, res);
+      }
+    } catch (const Error&) {
+      return false;
+    }
+    if (jac && p_->shifted() && jac[1]) shift_jacobian(*p_, grf, shift, jac[1]);
+    for (int i = 0; i < m; ++i)
+      if (!std::isfinite(res[i])) return false;
+    if (jac && jac[0])
+      for (int i = 0; i < m * n; ++i)
+        if (!std::isfinite(jac[0][i])) return false;
+    return true;
+  }
+
+ private:
+  // Derivatives along parameters first .. first + count - 1 (K >= count
+  // dual slots), into their columns of jac (row-major, residuals x n); the
+  // residuals into res when given, the simulated force into grf.
+  template <int K>
+  void chunk(const double* u, int first, int count, double shift, double* res, double* jac,
+             std::vector<double>* grf) const {
+    using J = ceres::Jet<double, K>;
+    const int n = space_->size(), m = p_->n_residuals();
+    std::vector<J> uj(n);
+    for (int j = 0; j < n; ++j) {
+      uj[j] = J(u[j]);
+      if (j >= first && j < first + count) uj[j].v[j - first] = 1.0;
+    }
+    const Model5ParamsT<J> q = model5_params_t(space_->to_params<J>(uj.data()));
+    std::vector<J> g, z;
+    simulate_model5_t<J>(q, o_->model5_geometry, p_->impact, p_->n_grid, &g, p_->k_idx.empty() ? nullptr : &z,
+                         nullptr);
+    std::vector<J> r(m);
+    fill_residuals<J>(*p_, g, z, shift, r.data());
+    for (int i = 0; i < m; ++i) {
+      if (res) res[i] = r[i].a;
+      for (int c = 0; c < count; ++c) jac[i * n + first + c] = r[i].v[c];
+    }
+    grf->resize(g.size());
+    for (size_t k = 0; k < g.size(); ++k) (*grf)[k] = g[k].a;
+  }
+
   const Prepared* p_;
   const ParamSpace* space_;
   const FitOptions* o_;
@@ -643,7 +758,7 @@ std::unique_ptr<ceres::Problem> make_problem(const std::vector<Prepared>& preps,
                                              std::atomic<long>* evals, std::vector<double*>* blocks) {
   ceres::Problem::Options po;
   auto problem = std::make_unique<ceres::Problem>(po);
-  const bool numeric = static_cast<bool>(o.simulator) || o.model == ModelKind::Model5;
+  const bool numeric = static_cast<bool>(o.simulator);
   const ModelKind shape = space.model;
   const detail::Layout layout = detail::layout_for(shape, shape == ModelKind::Model2 && o.m_eff_kg == 0.0);
   blocks->assign(1, u);
@@ -662,6 +777,8 @@ std::unique_ptr<ceres::Problem> make_problem(const std::vector<Prepared>& preps,
     ceres::CostFunction* cf;
     if (numeric) {
       cf = new NumericTrialCost(&p, &space, &o, evals);
+    } else if (o.model == ModelKind::Model5) {
+      cf = new Model5TrialCost(&p, &space, &o, evals);
     } else {
       auto* c = new ceres::DynamicAutoDiffCostFunction<AutoTrialCost, 8>(
           new AutoTrialCost{&p, &space, layout, !space.nonlinear(), evals});
@@ -706,6 +823,14 @@ Optimum run_ceres(const std::vector<Prepared>& preps, const ParamSpace& space, c
   so.logging_type = ceres::SILENT;
   so.minimizer_progress_to_stdout = false;
   so.num_threads = 1;
+  // With bounds, Ceres follows every trust-region step by a projected Armijo
+  // line search (its own source calls it "not terribly effective", ceres
+  // issue #187) whose cubic interpolation costs a Jacobian per trial point:
+  // for Model 5's warm start on session s005, 169 Jacobians and 231
+  // simulations in 42 iterations, against 37 and 42 without it, ending at a
+  // lower cost. Model 5 goes without (Models 1-4 keep it: their results are
+  // relied on as they are).
+  if (o.model == ModelKind::Model5) so.max_num_line_search_step_size_iterations = 0;
   ceres::Solver::Summary summary;
   ceres::Solve(so, problem.get(), &summary);
   best.u = Eigen::Map<Eigen::VectorXd>(u.data(), u.size());
@@ -869,13 +994,13 @@ Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, con
   }
 
   *used = "ceres (Levenberg-Marquardt, multi-start over spring orderings)";
+  // A given start with starts == 1 (a warm start, e.g. Model 5 from Model
+  // 4's optimum) runs alone: the other candidates are not screened.
+  const bool warm_only = o.initial.k1_n_m > 0.0 && o.starts == 1;
   std::vector<std::pair<double, int>> ranked;
-  for (size_t i = 0; i < cands.size(); ++i)
+  for (size_t i = 0; i < cands.size() && !warm_only; ++i)
     ranked.push_back({cost_of(preps, space, o, space.to_mat(cands[i].data()), evals), static_cast<int>(i)});
   std::vector<int> order;
-  // A given start with starts == 1 (a warm start, e.g. Model 5 from Model
-  // 4's optimum) runs alone.
-  const bool warm_only = o.initial.k1_n_m > 0.0 && o.starts == 1;
   if (warm_only) {
     order.push_back(0);
   } else {
@@ -906,15 +1031,18 @@ Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, con
   std::vector<Optimum> runs(order.size());
   auto in_parallel = [&](const std::vector<size_t>& which, const FitOptions& oo, bool from_runs) {
     std::atomic<size_t> next{0};
+    const int threads = std::max(1, std::min<int>(o.threads, static_cast<int>(which.size())));
+    // The threads the runs leave free go to each run's derivatives (Model 5).
+    FitOptions inner = oo;
+    inner.threads = std::max(1, o.threads / threads);
     auto worker = [&] {
       for (size_t q; (q = next++) < which.size();) {
         const size_t k = which[q];
         const Eigen::VectorXd u0 = from_runs ? runs[k].u : cands[order[k]];
-        Optimum r = run_ceres(preps, space, oo, u0, evals, false, from_runs ? &runs[k].shifts : nullptr);
+        Optimum r = run_ceres(preps, space, inner, u0, evals, false, from_runs ? &runs[k].shifts : nullptr);
         if (!from_runs || r.cost <= runs[k].cost) runs[k] = std::move(r);
       }
     };
-    const int threads = std::max(1, std::min<int>(o.threads, static_cast<int>(which.size())));
     std::vector<std::thread> pool;
     for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
     worker();
@@ -1150,8 +1278,6 @@ std::vector<const TrialData*> choose_train(const std::vector<TrialData>& trials,
 }
 
 void check_options(const FitOptions& o) {
-  if (o.model == ModelKind::Model5 && !o.simulator)
-    throw Error("fit: Model 5 needs a simulator callback (fitting/model5.h)");
   if (!(o.force_noise_n > 0.0) || !(o.marker_noise_m > 0.0))
     throw Error("fit: force_noise_n and marker_noise_m must be positive");
   if (!(o.m1_kg >= 0.0) || !(o.m2_kg >= 0.0)) throw Error("fit: layer masses must be >= 0");
@@ -1185,9 +1311,74 @@ FitCore fit_core(const std::vector<const TrialData*>& train, const FitOptions& o
   return fc;
 }
 
+// The model the options name (or their custom simulator) on `imp`'s samples.
+Simulation simulate_model(const FitOptions& o, const MatParams& mp, const Impact& imp) {
+  if (o.simulator) return o.simulator(mp, imp);
+  if (o.model == ModelKind::Model5) return simulate_model5(mp, o.model5_geometry, imp);
+  return simulate(o.model, mp, imp);
+}
+
 double sim_peak(const FitOptions& o, const MatParams& mp, const Impact& imp) {
-  const Simulation s = o.simulator ? o.simulator(mp, imp) : simulate(o.model, mp, imp);
+  const Simulation s = simulate_model(o, mp, imp);
   return s.grf_n.maxCoeff();
+}
+
+// Sensitivity of the peak force to -10 % / +10 % on each stiffness and
+// damping. From the exact derivatives, in one dual-number simulation: the
+// peak's elasticity E = d ln F / d ln p (the envelope: the derivative at the
+// peak sample), carried as a power law, 100 (0.9^E - 1) and 100 (1.1^E - 1)
+// (exact when the peak goes as a power of the parameter, as a spring-mass
+// impact's goes as sqrt(k)). A custom simulator is re-run at +-10 %.
+std::vector<SensitivityEntry> sensitivity_table(const FitOptions& o, const MatParams& mp, const Impact& imp) {
+  const ModelKind shape = o.model == ModelKind::Model5 ? ModelKind::Model4 : o.model;
+  std::vector<std::string> names;
+  for (const auto& name : parameter_names(shape, false))
+    if (is_stiffness_or_damping(name)) names.push_back(name);
+  std::vector<SensitivityEntry> out;
+  if (o.simulator) {
+    const double base = sim_peak(o, mp, imp);
+    for (const auto& name : names) {
+      SensitivityEntry s;
+      s.name = name;
+      MatParams lo = mp, hi = mp;
+      set_parameter(lo, name, 0.9 * get_parameter(mp, name));
+      set_parameter(hi, name, 1.1 * get_parameter(mp, name));
+      s.peak_pct_minus10 = 100.0 * (sim_peak(o, lo, imp) - base) / base;
+      s.peak_pct_plus10 = 100.0 * (sim_peak(o, hi, imp) - base) / base;
+      out.push_back(s);
+    }
+    return out;
+  }
+  using J = ceres::Jet<double, 8>;
+  detail::ParamsT<J> p = detail::to_params_t<J>(shape, mp);
+  for (size_t a = 0; a < names.size() && a < 8; ++a) {
+    const std::string& n = names[a];
+    J& f = n[0] == 'k' ? p.k[n[1] - '1'] : p.r[n[1] - '1'];
+    f.v[a] = f.a;  // d / d ln p
+  }
+  const int n_out =
+      static_cast<int>(std::floor((imp.duration_s - imp.first_output_s) / imp.output_dt_s + 1e-9)) + 1;
+  std::vector<J> grf;
+  if (o.model == ModelKind::Model5) {
+    simulate_model5_t<J>(model5_params_t(p), o.model5_geometry, imp, n_out, &grf, nullptr, nullptr);
+  } else {
+    detail::Trace<J> tr;
+    detail::run_model<J>(detail::layout_for(shape, mp.m_eff_kg <= 0.0), p, imp, !mp.has_effects(),
+                         SimulateOptions{}.rk4_max_step_s, n_out, tr);
+    grf = std::move(tr.grf);
+  }
+  size_t ip = 0;
+  for (size_t i = 1; i < grf.size(); ++i)
+    if (grf[i].a > grf[ip].a) ip = i;
+  for (size_t a = 0; a < names.size() && a < 8; ++a) {
+    const double e = grf[ip].v[a] / grf[ip].a;
+    SensitivityEntry s;
+    s.name = names[a];
+    s.peak_pct_minus10 = 100.0 * (std::pow(0.9, e) - 1.0);
+    s.peak_pct_plus10 = 100.0 * (std::pow(1.1, e) - 1.0);
+    out.push_back(s);
+  }
+  return out;
 }
 
 }  // namespace
@@ -1243,7 +1434,7 @@ TrialReport predict(const TrialData& trial, const MatParams& params, const FitOp
     imp.first_output_s = std::clamp(trial.t_s[i_c] - shift, 0.0, p.dt * (1.0 - 1e-12));
     imp.duration_s = imp.first_output_s + static_cast<double>(n - 1 - i_c) * p.dt + 0.5 * p.dt;
     try {
-      const Simulation ex = options.simulator ? options.simulator(params, imp) : simulate(options.model, params, imp);
+      const Simulation ex = simulate_model(options, params, imp);
       // A simulator that samples elsewhere than asked keeps the grid's
       // interpolated values.
       const double tol = 1e-9 * p.dt + 1e-12;
@@ -1306,6 +1497,33 @@ Eigen::VectorXd residuals(const std::vector<TrialData>& trials, const MatParams&
   return residual_vector(preps, space, options, params, nullptr);
 }
 
+Eigen::MatrixXd residual_jacobian(const std::vector<TrialData>& trials, const MatParams& params,
+                                  const FitOptions& options, std::vector<std::string>* names) {
+  check_options(options);
+  const ParamSpace space = make_space(options, kNaN);
+  std::vector<Prepared> preps;
+  for (const auto& t : trials) preps.push_back(prepare(t, options));
+  std::vector<double> shifts;
+  residual_vector(preps, space, options, params, nullptr, &shifts);
+  Eigen::VectorXd u = space.from_mat(params);
+  std::vector<double*> blocks;
+  auto problem = make_problem(preps, space, options, u.data(), shifts, nullptr, &blocks);
+  ceres::Problem::EvaluateOptions eo;
+  eo.parameter_blocks = {u.data()};
+  double cost = 0.0;
+  ceres::CRSMatrix crs;
+  if (!problem->Evaluate(eo, &cost, nullptr, nullptr, &crs))
+    throw Error("residual_jacobian: the model did not run at these parameters");
+  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(crs.num_rows, crs.num_cols);
+  for (int r = 0; r < crs.num_rows; ++r)
+    for (int k = crs.rows[r]; k < crs.rows[r + 1]; ++k) J(r, crs.cols[k]) = crs.values[k];
+  if (names) {
+    names->clear();
+    for (const auto& f : space.free) names->push_back(param_display(f));
+  }
+  return J;
+}
+
 FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
   const auto t_start = std::chrono::steady_clock::now();
   check_options(options);
@@ -1358,8 +1576,32 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
     }
   }
 
-  for (const auto& t : trials) {
-    TrialReport rep = predict(t, res.params, options);
+  // Every trial predicted (each its own simulation: in parallel, over `threads`).
+  std::vector<TrialReport> predicted(trials.size());
+  {
+    std::atomic<size_t> next{0};
+    std::vector<std::exception_ptr> failures(trials.size());
+    auto worker = [&] {
+      for (size_t q; (q = next++) < trials.size();) {
+        try {
+          predicted[q] = predict(trials[q], res.params, options);
+        } catch (...) {
+          failures[q] = std::current_exception();
+        }
+      }
+    };
+    // (A custom simulator is not assumed thread-safe.)
+    const int threads = options.simulator ? 1 : std::min<int>(options.threads, static_cast<int>(trials.size()));
+    std::vector<std::thread> pool;
+    for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
+    worker();
+    for (auto& t : pool) t.join();
+    for (const auto& f : failures)
+      if (f) std::rethrow_exception(f);
+  }
+  for (size_t q = 0; q < trials.size(); ++q) {
+    const TrialData& t = trials[q];
+    TrialReport rep = std::move(predicted[q]);
     rep.train = std::find(res.train_ids.begin(), res.train_ids.end(), t.id) != res.train_ids.end();
     if (rep.train) {
       // The training trials' shifts come from the joint optimum, with the
@@ -1381,19 +1623,7 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
     Impact imp = fc.preps.front().impact;
     imp.output_dt_s = fc.preps.front().dt;
     imp.duration_s = std::max(imp.duration_s, 0.3);
-    const double base = sim_peak(options, res.params, imp);
-    const ModelKind shape = options.model == ModelKind::Model5 ? ModelKind::Model4 : options.model;
-    for (const auto& name : parameter_names(shape, false)) {
-      if (!is_stiffness_or_damping(name)) continue;
-      SensitivityEntry s;
-      s.name = name;
-      MatParams lo = res.params, hi = res.params;
-      set_parameter(lo, name, 0.9 * get_parameter(res.params, name));
-      set_parameter(hi, name, 1.1 * get_parameter(res.params, name));
-      s.peak_pct_minus10 = 100.0 * (sim_peak(options, lo, imp) - base) / base;
-      s.peak_pct_plus10 = 100.0 * (sim_peak(options, hi, imp) - base) / base;
-      res.sensitivity.push_back(s);
-    }
+    res.sensitivity = sensitivity_table(options, res.params, imp);
   }
 
   if (options.leave_one_out) {

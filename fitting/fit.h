@@ -46,8 +46,10 @@
 // (FitResult::alternatives) and the parameters that differ between them are
 // marked not identifiable instead of silently picking one. Simulated
 // annealing (Corana et al. 1987, fitting/anneal.h) runs on the same
-// objective with the contact shifts profiled out. Model 5 (or any model given
-// as a simulate callback) is fitted with central numeric differences.
+// objective with the contact shifts profiled out. Model 5 has exact
+// derivatives too (fitting/model5_impl.h, dual numbers through its implicit
+// integrator, the derivative directions split over `threads`); only a
+// model given as a simulate callback is fitted with central differences.
 //
 // Uncertainty: J^T J at the optimum, inverted and scaled by the residual
 // variance (RSS / (N - p)); standard errors of log-parameters are relative
@@ -58,7 +60,8 @@
 // impact velocity (only its clock shift is fitted); key characteristics
 // (fitting/characteristics.h) for measured and simulated curves; optional
 // leave-one-trial-out; sensitivity of the peak force to +-10 % on each
-// stiffness and damping.
+// stiffness and damping (from the exact derivatives: the peak's elasticity
+// carried as a power law; a custom simulator is re-run instead).
 //
 // Table mode: when only per-trial summaries exist (velocity, maximum
 // deformation, peak force: the paper's Table 1), fit_table matches the
@@ -71,6 +74,7 @@
 
 #include "fitting/anneal.h"
 #include "fitting/characteristics.h"
+#include "fitting/model5.h"
 #include "fitting/models.h"
 
 namespace dropfit::fitting {
@@ -94,15 +98,17 @@ struct TrialData {
   double marker_noise_m = std::numeric_limits<double>::quiet_NaN();  // face height SD, free-fall fit
 };
 
-// A custom simulator (Model 5, or a user's own); the fitter asks it for the
-// samples of Impact (first_output_s, output_dt_s, duration_s).
+// A custom simulator (a user's own model); the fitter asks it for the
+// samples of Impact (first_output_s, output_dt_s, duration_s) and
+// differentiates it by central differences.
 using Simulator = std::function<Simulation(const MatParams&, const Impact&)>;
 
 enum class Optimizer { Ceres, Annealing };
 
 struct FitOptions {
   ModelKind model = ModelKind::Model4;
-  Simulator simulator;                // required for Model 5; optional override otherwise
+  Simulator simulator;                // optional override of the model (central differences)
+  Model5Geometry model5_geometry;     // Model 5's mat, face and grid (from the manifest)
 
   // Which trials train: ids; empty = the accepted trial with the median
   // impact velocity. Several ids = a joint fit.
@@ -151,7 +157,8 @@ struct FitOptions {
   double k_min_n_m = 2e3, k_max_n_m = 3e7;
   double k_eff_lower_ratio = 0.3, k_eff_upper_ratio = 1000.0;
   double r_min_n_s_m = 3.0, r_max_n_s_m = 3e4;
-  int threads = 2;                     // Levenberg-Marquardt runs in parallel
+  int threads = 2;                     // Levenberg-Marquardt runs in parallel; a single run
+                                       //   (Model 5) splits its derivatives over them instead
   int first_stage_iterations = 12;     // every start runs this many iterations first;
   double follow_factor = 3.0;          //   those within this factor of the best cost go on
   double basin_tolerance = 1.0;        // alternatives within this many chi-square(p, 95 %) units
@@ -236,7 +243,7 @@ struct FitResult {
 
 // Fits `options.model` to the training trials and predicts every trial.
 // Throws Error for unusable input (no accepted trial, unknown train id,
-// missing samples, Model 5 without a simulator).
+// missing samples, an impossible Model 5 geometry).
 FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options);
 
 // Predicts one trial from parameters (its own velocity), with the report;
@@ -248,6 +255,14 @@ TrialReport predict(const TrialData& trial, const MatParams& params, const FitOp
 // trial's clock shift profiled out when options.fit_contact_time).
 Eigen::VectorXd residuals(const std::vector<TrialData>& trials, const MatParams& params,
                           const FitOptions& options);
+
+// The derivatives the optimiser uses: residuals x free parameters (in the
+// optimiser's coordinates: log stiffness, log damping, ...), each trial's
+// clock shift held at its profiled value. Automatic differentiation for
+// Models 1-5, central differences for a custom simulator. Also returns the
+// free parameters' names in column order.
+Eigen::MatrixXd residual_jacobian(const std::vector<TrialData>& trials, const MatParams& params,
+                                  const FitOptions& options, std::vector<std::string>* names = nullptr);
 
 // ---------------------------------------------------------------------------
 // Table mode.

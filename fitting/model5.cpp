@@ -55,6 +55,7 @@ void validate(const MatParams& p, const Model5Geometry& g, const Impact& im) {
               std::isfinite(g.inertia_tilt_y_kg_m2),
           "impactor height and moments of inertia must be finite (height >= 0)");
   require(finite_pos(g.max_step_s), "max_step_s must be > 0");
+  require(finite_pos(g.creep_step) && finite_pos(g.creep_fast_1_s), "creep_step and creep_fast_1_s must be > 0");
   require(g.stability_fraction > 0.0 && g.stability_fraction <= 1.0, "stability_fraction must be in (0, 1]");
 }
 
@@ -533,12 +534,14 @@ Layout make_layout(const Model5ParamsT<double>& q, const Model5Geometry& geo, co
   // elements need no such cap: their fast ringing is damped by the L-stable
   // stages (see model5.h, accuracy).
   {
-    constexpr double kCreepStep = 0.07;
+    const double kCreepStep = geo.creep_step;
     double wmax = 0.0;
     for (double wj : L.w) wmax = std::max(wmax, wj);
-    auto creep = [](double k, double r, double m) {
+    const double fast = geo.creep_fast_1_s;
+    auto creep = [fast](double k, double r, double m) {
       const double disc = r * r - 4.0 * k * m;
-      return (k > 0.0 && r > 0.0 && disc > 0.0) ? 2.0 * k / (r + std::sqrt(disc)) : 0.0;
+      const double rate = (k > 0.0 && r > 0.0 && disc > 0.0) ? 2.0 * k / (r + std::sqrt(disc)) : 0.0;
+      return rate < fast ? rate : 0.0;
     };
     const double k1w = q.k1_n_m * wmax, r1w = std::max(q.r1_n_s_m, q.hysteresis ? q.r1_unload_n_s_m : 0.0) * wmax;
     const double mu = m1n * m2n / (m1n + m2n);

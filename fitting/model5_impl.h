@@ -11,10 +11,10 @@
 //     columns under the face share the impactor, an arrow-shaped linear
 //     system solved exactly per stage by eliminating the columns (2 x 2
 //     each) onto the impactor's three coordinates (a 3 x 3 Schur
-//     complement). Integrated by the two-stage, L-stable, stiffly accurate
-//     SDIRK of order 2 (Alexander 1977, SIAM J. Numer. Anal. 14:1006;
-//     gamma = 1 - 1/sqrt 2): stiff damping is damped, not amplified, and the
-//     step does not depend on k or r.
+//     complement). Integrated by the three-stage, L-stable, stiffly
+//     accurate SDIRK of order 3 (Alexander 1977, SIAM J. Numer. Anal.
+//     14:1006; see implicit_step): stiff damping is damped, not amplified,
+//     and the step does not depend on k or r.
 //   B (explicit): the layers' shear coupling (fixed geometry, not fitted)
 //     and element 1's cubic term, as half kicks before and after each A
 //     step (Strang splitting; each half kick by the explicit midpoint rule,
@@ -286,8 +286,11 @@ class Integrator {
   // one instant, decides: with stiff damping the force at an instant
   // carries the unresolved fast transients, the impulse does not.
   void step(double h) {
+    // Only a pressed cell can be released: with none, no state is saved.
+    bool pressed = false;
+    for (int j : L_.face) pressed = pressed || in_[j];
     for (int iter = 0;; ++iter) {
-      const bool may_redo = iter < kMaxRedo;
+      const bool may_redo = pressed && iter < kMaxRedo;
       if (may_redo) save();
       advance(h);
       if (!may_redo) break;

@@ -162,8 +162,8 @@ TEST(Fit, CeresAndAnnealingReachTheSameOptimum) {
   EXPECT_GT(std::abs(a.params.k1_n_m / truth.k1_n_m - 1.0), 1e-5);  // the noise moved the optimum
 }
 
-// Model 5 is fitted through a simulate callback with numeric differences;
-// a callback wrapping Model 3 must find Model 3's parameters.
+// A user's model is fitted through a simulate callback with numeric
+// differences; a callback wrapping Model 3 must find Model 3's parameters.
 TEST(Fit, FitsThroughASimulatorCallback) {
   const MatParams truth = truth_for(ModelKind::Model3);
   FitOptions o;
@@ -193,9 +193,6 @@ TEST(Fit, FitsThroughASimulatorCallback) {
   for (const auto& name : parameter_names(ModelKind::Model3, false))
     EXPECT_LT(rel_err(shifted.params, truth, name), 0.01) << name;
   EXPECT_LT(std::abs(shifted.trials[0].comparison.peak_force_pct_diff), 0.1);
-  FitOptions m5;
-  m5.model = ModelKind::Model5;
-  EXPECT_THROW(fit(make_trials(ModelKind::Model3, truth), m5), Error);  // no simulator
 }
 
 TEST(Fit, JointFitPredictionsLeaveOneOutAndSensitivity) {
