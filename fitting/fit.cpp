@@ -4,6 +4,7 @@
 #include "fitting/fit.h"
 
 #include <ceres/ceres.h>
+#include <boost/math/distributions/chi_squared.hpp>
 #include <fmt/format.h>
 
 #include <Eigen/Eigenvalues>
@@ -935,12 +936,9 @@ std::vector<Eigen::VectorXd> candidate_starts(const ParamSpace& space, const Fit
   return cands;
 }
 
-// Chi-square quantile (Wilson-Hilferty), accurate to ~1 % for p >= 2.
+// The chi-square distribution's 95 % quantile (Boost.Math).
 double chi2_quantile_95(int dof) {
-  const double p = std::max(dof, 1);
-  const double z = 1.6448536269514722;
-  const double a = 2.0 / (9.0 * p);
-  return p * std::pow(1.0 - a + z * std::sqrt(a), 3.0);
+  return boost::math::quantile(boost::math::chi_squared_distribution<double>(std::max(dof, 1)), 0.95);
 }
 
 struct Search {
