@@ -489,14 +489,27 @@ void shift_jacobian(const Prepared& p, const std::vector<double>& grf, double sh
 // The Ceres cost of one trial through a simulate callback (a user's model): model
 // parameters by central differences, the clock shift analytically (the
 // simulation does not depend on it).
-class NumericTrialCost : public ceres::CostFunction {
+// What the hand-written trial costs share: the blocks (parameters, then the
+// trial's clock shift when fitted) and the residual count.
+class TrialCostBase : public ceres::CostFunction {
  public:
-  NumericTrialCost(const Prepared* p, const ParamSpace* space, const FitOptions* o, std::atomic<long>* evals)
+  TrialCostBase(const Prepared* p, const ParamSpace* space, const FitOptions* o, std::atomic<long>* evals)
       : p_(p), space_(space), o_(o), evals_(evals) {
     mutable_parameter_block_sizes()->push_back(space->size());
     if (p->shifted()) mutable_parameter_block_sizes()->push_back(1);
     set_num_residuals(p->n_residuals());
   }
+
+ protected:
+  const Prepared* p_;
+  const ParamSpace* space_;
+  const FitOptions* o_;
+  std::atomic<long>* evals_;
+};
+
+class NumericTrialCost : public TrialCostBase {
+ public:
+  using TrialCostBase::TrialCostBase;
 
   bool Evaluate(double const* const* u, double* res, double** jac) const override {
     const int n = space_->size(), m = p_->n_residuals();
@@ -530,11 +543,6 @@ class NumericTrialCost : public ceres::CostFunction {
     return true;
   }
 
- private:
-  const Prepared* p_;
-  const ParamSpace* space_;
-  const FitOptions* o_;
-  std::atomic<long>* evals_;
 };
 
 // d residual / d shift of one trial's force residuals (the simulation does
@@ -556,14 +564,9 @@ void shift_jacobian(const Prepared& p, const std::vector<double>& grf, double sh
 // derivative directions in chunks run on up to `threads` threads (Model 5
 // is fitted from one warm start: its Levenberg-Marquardt run would leave
 // the other core idle); the clock shift analytically.
-class Model5TrialCost : public ceres::CostFunction {
+class Model5TrialCost : public TrialCostBase {
  public:
-  Model5TrialCost(const Prepared* p, const ParamSpace* space, const FitOptions* o, std::atomic<long>* evals)
-      : p_(p), space_(space), o_(o), evals_(evals) {
-    mutable_parameter_block_sizes()->push_back(space->size());
-    if (p->shifted()) mutable_parameter_block_sizes()->push_back(1);
-    set_num_residuals(p->n_residuals());
-  }
+  using TrialCostBase::TrialCostBase;
 
   bool Evaluate(double const* const* u, double* res, double** jac) const override {
     const int n = space_->size(), m = p_->n_residuals();
@@ -642,11 +645,6 @@ class Model5TrialCost : public ceres::CostFunction {
     grf->resize(g.size());
     for (size_t k = 0; k < g.size(); ++k) (*grf)[k] = g[k].a;
   }
-
-  const Prepared* p_;
-  const ParamSpace* space_;
-  const FitOptions* o_;
-  std::atomic<long>* evals_;
 };
 
 // One trial's residuals (doubles) with its clock shift profiled out; the
