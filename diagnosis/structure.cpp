@@ -5,6 +5,7 @@
 
 #include <Eigen/Dense>
 #include <algorithm>
+#include <boost/math/distributions/chi_squared.hpp>
 #include <bit>
 #include <cassert>
 #include <cmath>
@@ -318,36 +319,7 @@ double chi_square_sf(double q, double dof) {
   if (!(dof > 0.0)) return kNaN;
   if (!(q > 0.0)) return 1.0;
   if (std::isinf(q)) return 0.0;
-  const double a = 0.5 * dof, x = 0.5 * q;
-  const double log_prefactor = -x + a * std::log(x) - std::lgamma(a);
-  constexpr double eps = 1e-15;
-  if (x < a + 1.0) {
-    // Series for the lower function P(a, x).
-    double ap = a, del = 1.0 / a, sum = del;
-    for (int n = 0; n < 1000; ++n) {
-      ap += 1.0;
-      del *= x / ap;
-      sum += del;
-      if (std::abs(del) < std::abs(sum) * eps) break;
-    }
-    return std::clamp(1.0 - sum * std::exp(log_prefactor), 0.0, 1.0);
-  }
-  // Continued fraction for Q(a, x) by the modified Lentz method.
-  constexpr double tiny = 1e-300;
-  double b = x + 1.0 - a, c = 1.0 / tiny, d = 1.0 / b, h = d;
-  for (int i = 1; i < 1000; ++i) {
-    const double an = -i * (i - a);
-    b += 2.0;
-    d = an * d + b;
-    if (std::abs(d) < tiny) d = tiny;
-    c = b + an / c;
-    if (std::abs(c) < tiny) c = tiny;
-    d = 1.0 / d;
-    const double del = d * c;
-    h *= del;
-    if (std::abs(del - 1.0) < eps) break;
-  }
-  return std::clamp(std::exp(log_prefactor) * h, 0.0, 1.0);
+  return boost::math::cdf(boost::math::complement(boost::math::chi_squared_distribution<double>(dof), q));
 }
 
 Whiteness ljung_box(const std::vector<Eigen::VectorXd>& segments, int max_lag, int fitted_parameters, double alpha) {

@@ -144,9 +144,8 @@ Whiteness ljung_box(const std::vector<Eigen::VectorXd>& segments, int max_lag, i
                     double alpha = 0.01);
 Whiteness ljung_box(const Eigen::VectorXd& residual, int max_lag, int fitted_parameters = 0, double alpha = 0.01);
 
-// Upper tail of the chi-square distribution, P(chi2_dof > q), by the
-// regularised incomplete gamma function (series below a + 1, Lentz's
-// continued fraction above; Press et al., Numerical Recipes, 3rd ed., 6.2).
+// Upper tail of the chi-square distribution, P(chi2_dof > q) (Boost.Math's
+// chi_squared_distribution); NaN for dof <= 0, 1 for q <= 0 (or NaN).
 double chi_square_sf(double q, double dof);
 
 struct PeriodicPeak {
