@@ -132,7 +132,10 @@ struct ForceRecord {
   std::optional<Eigen::Vector3d> plate_geometry_m;
 };
 
-struct TrialData {
+// One trial's recordings as read from its folder (marker table, force file,
+// DLTdv offsets), before any stage has worked on them. Not fitting::TrialData,
+// the fitter's view of a processed trial.
+struct TrialRecording {
   TrialSpec spec;
   MarkerTracks2D tracks;
   ForceRecord force;
@@ -158,7 +161,7 @@ struct Session {
   // one per camera in manifest order; empty when the session is calibrated
   // from its frame.
   std::vector<DltCoefficients> dlt_coefficients;
-  std::vector<TrialData> trials;
+  std::vector<TrialRecording> trials;
 };
 
 }  // namespace dropfit
