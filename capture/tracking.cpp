@@ -551,9 +551,10 @@ struct MarkerTracker::Impl {
     return -1;
   }
 
-  void add_frame(const ImageView8& img) {
+  // Checks the frame against the first (and the seeds against its size),
+  // then makes room for its row; returns its index.
+  int begin_frame(const ImageView8& img) {
     const int frame = n_frames;
-    const int np = static_cast<int>(points.size());
     if (img.data == nullptr || img.width <= 0 || img.height <= 0) throw Error(fmt::format("{}: frame {} is empty", camera, frame));
     if (frame == 0) {
       width = img.width;
@@ -573,11 +574,17 @@ struct MarkerTracker::Impl {
     ++n_frames;
     uv.resize(uv.size() + 2 * points.size(), kNaN);
     flags.resize(flags.size() + points.size(), TrackFlag::BeforeSeed);
+    return frame;
+  }
 
-    // Markers tracked in the previous frame first, then lost ones, which
-    // may not take a blob a tracked marker holds.
-    std::vector<int> tracked, lost;
-    std::vector<std::pair<Eigen::Vector2d, int>> claimed;  // blob centres held this frame, by whom
+  using Claims = std::vector<std::pair<Eigen::Vector2d, int>>;  // blob centres held this frame, by whom
+
+  // Starts the points seeded in this frame (their blobs claimed), gives up
+  // those lost too long, and sorts the others into tracked in the previous
+  // frame and lost.
+  void sort_points(const ImageView8& img, int frame, std::vector<int>& tracked, std::vector<int>& lost,
+                   Claims& claimed) {
+    const int np = static_cast<int>(points.size());
     for (int p = 0; p < np; ++p) {
       PointState& s = state[p];
       if (!s.started) {
@@ -599,12 +606,14 @@ struct MarkerTracker::Impl {
       }
       (s.last_seen == frame - 1 ? tracked : lost).push_back(p);
     }
+  }
 
-    for (int p : tracked) state[p].prediction = predict(state[p], frame);
-    for (int p : lost) state[p].prediction = predict(state[p], frame);
-
-    // Tracked markers: each picks its blob; two picking one blob overlap.
-    std::vector<Proposal> props(np);
+  // Tracked markers: each picks its blob; two picking one blob overlap (a
+  // gap for both), as does a blob too large for a marker that also covers
+  // another marker's prediction (the two have merged in the image).
+  void place_tracked(const ImageView8& img, int frame, const std::vector<int>& tracked, std::vector<Proposal>& props,
+                     Claims& claimed) {
+    const int np = static_cast<int>(points.size());
     for (int p : tracked) {
       int neighbours = 0;
       const auto cands = candidates(p, img, state[p].prediction, opt.gate_px, neighbours);
@@ -623,8 +632,6 @@ struct MarkerTracker::Impl {
         overlap(a, b);
         overlap(b, a);
       }
-    // A blob too large for a marker that also covers another marker's
-    // prediction: the two have merged in the image.
     for (int p : tracked)
       if (const int q = merged_with(p, props[p], frame); q >= 0) overlap(p, q);
     for (int p : tracked) {
@@ -644,8 +651,13 @@ struct MarkerTracker::Impl {
     }
     for (int p : tracked)
       if (props[p].has_blob && !shared[p]) accept(frame, p, props[p].blob, TrackFlag::Tracked);
+  }
 
-    // Lost markers: re-acquire only an unclaimed, unambiguous candidate.
+  // Lost markers: re-acquire only an unclaimed, unambiguous candidate that
+  // no other lost marker claims too.
+  void place_lost(const ImageView8& img, int frame, const std::vector<int>& lost, std::vector<Proposal>& props,
+                  const Claims& claimed) {
+    const int np = static_cast<int>(points.size());
     for (int p : lost) {
       const PointState& s = state[p];
       const int since = frame - s.last_seen;
@@ -697,6 +709,20 @@ struct MarkerTracker::Impl {
         warn(p, frame, prop.reason);
       }
     }
+  }
+
+  void add_frame(const ImageView8& img) {
+    const int frame = begin_frame(img);
+    // Markers tracked in the previous frame first, then lost ones, which
+    // may not take a blob a tracked marker holds.
+    std::vector<int> tracked, lost;
+    Claims claimed;
+    sort_points(img, frame, tracked, lost, claimed);
+    for (int p : tracked) state[p].prediction = predict(state[p], frame);
+    for (int p : lost) state[p].prediction = predict(state[p], frame);
+    std::vector<Proposal> props(points.size());
+    place_tracked(img, frame, tracked, props, claimed);
+    place_lost(img, frame, lost, props, claimed);
   }
 };
 
