@@ -17,7 +17,7 @@
 #include <string>
 #include <vector>
 
-#include "capture/session.h"
+#include "core/session.h"
 
 namespace dropfit::capture {
 

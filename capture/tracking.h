@@ -55,7 +55,7 @@
 #include <string>
 #include <vector>
 
-#include "capture/session.h"
+#include "core/session.h"
 
 namespace dropfit {
 class Progress;

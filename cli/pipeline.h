@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "calibration/calibration.h"
-#include "capture/session.h"
+#include "core/session.h"
 #include "diagnosis/diagnosis.h"
 #include "reconstruction/reconstruction.h"
 #include "fitting/fit.h"
