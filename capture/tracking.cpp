@@ -17,6 +17,7 @@
 
 #include "core/error.h"
 #include "core/progress.h"
+#include "core/validate.h"
 
 namespace dropfit::capture {
 namespace {
@@ -181,7 +182,37 @@ class WindowScanner {
 
 // ---- detect_blobs -------------------------------------------------------------
 
+void DetectionOptions::validate() const {
+  constexpr std::string_view w = "tracking options";
+  check::in_range(w, "detection.threshold_fraction", threshold_fraction, 0.0, 1.0);
+  check::non_negative(w, "detection.min_contrast", min_contrast);
+  check::non_negative(w, "detection.min_area_px2", min_area_px2);
+  check::positive(w, "detection.max_area_px2", max_area_px2);
+  if (max_area_px2 < min_area_px2)
+    throw Error(fmt::format("tracking options: detection.max_area_px2 = {} (below detection.min_area_px2 = {})",
+                            max_area_px2, min_area_px2));
+  check::in_range(w, "detection.min_axis_ratio", min_axis_ratio, 0.0, 1.0);
+}
+
+void TrackingOptions::validate() const {
+  constexpr std::string_view w = "tracking options";
+  detection.validate();
+  check::positive(w, "gate_px", gate_px);
+  check::non_negative(w, "widen_px_per_frame", widen_px_per_frame);
+  check::positive(w, "max_gate_px", max_gate_px);
+  if (max_gate_px < gate_px)
+    throw Error(fmt::format("tracking options: max_gate_px = {} (below gate_px = {})", max_gate_px, gate_px));
+  check::at_least(w, "max_lost_frames", max_lost_frames, 0);
+  check::positive(w, "seed_radius_px", seed_radius_px);
+  check::in_range(w, "ambiguity_ratio", ambiguity_ratio, 1.0, 1e6);
+  check::in_range(w, "min_area_ratio", min_area_ratio, 0.0, 1.0);
+  check::in_range(w, "max_area_ratio", max_area_ratio, 1.0, 1e6);
+  check::in_range(w, "max_axis_ratio_drop", max_axis_ratio_drop, 0.0, 1.0);
+  check::in_range(w, "min_contrast_ratio", min_contrast_ratio, 0.0, 1.0);
+}
+
 std::vector<Blob> detect_blobs(const ImageView8& image, const DetectionOptions& options, PixelWindow window) {
+  options.validate();
   if (empty(window)) window = {0, 0, image.width, image.height};
   window = clip(window, image.width, image.height);
   std::vector<Blob> blobs;
@@ -729,6 +760,7 @@ struct MarkerTracker::Impl {
 MarkerTracker::MarkerTracker(std::string camera, std::vector<std::string> points, std::vector<Seed> seeds,
                              TrackingOptions options)
     : impl_(std::make_unique<Impl>()) {
+  options.validate();
   impl_->camera = std::move(camera);
   impl_->points = std::move(points);
   impl_->opt = options;

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "calibration/calibration.h"
+#include "capture/tracking.h"
 #include "core/error.h"
 #include "forceplate/forceplate.h"
 #include "reconstruction/reconstruction.h"
@@ -109,6 +110,30 @@ TEST(OptionsValidate, CalibrationOptions) {
   o = {};
   o.outlier_ratio = kNaN;
   expect_error_naming([&] { dropfit::calibration::calibrate({}, {}, o); }, {"outlier_ratio", "nan"});
+}
+
+TEST(OptionsValidate, TrackingOptions) {
+  using dropfit::capture::TrackingOptions;
+  EXPECT_NO_THROW(TrackingOptions{}.validate());
+  TrackingOptions o;
+  o.gate_px = -6.0;
+  expect_error_naming([&] { o.validate(); }, {"tracking options", "gate_px", "-6"});
+  o = {};
+  o.max_gate_px = 3.0;  // below the 6 px gate: the search could never widen
+  expect_error_naming([&] { o.validate(); }, {"max_gate_px", "3"});
+  o = {};
+  o.ambiguity_ratio = 0.5;
+  expect_error_naming([&] { o.validate(); }, {"ambiguity_ratio", "0.5"});
+  o = {};
+  o.detection.threshold_fraction = kNaN;
+  expect_error_naming([&] { o.validate(); }, {"detection.threshold_fraction", "nan"});
+  o = {};
+  o.detection.max_area_px2 = 2.0;  // below min_area_px2 = 3
+  expect_error_naming([&] { o.validate(); }, {"detection.max_area_px2", "2"});
+  // At the stage entry: the tracker's constructor.
+  o = {};
+  o.max_lost_frames = -1;
+  expect_error_naming([&] { dropfit::capture::MarkerTracker("cam1", {"a"}, {}, o); }, {"max_lost_frames", "-1"});
 }
 
 }  // namespace
