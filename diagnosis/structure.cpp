@@ -14,6 +14,7 @@
 #include <unsupported/Eigen/FFT>
 
 #include "core/error.h"
+#include "core/validate.h"
 
 namespace dropfit::diagnosis {
 namespace {
@@ -199,7 +200,29 @@ LinearFit linear_fit(const Eigen::MatrixXd& columns, const Eigen::VectorXd& y, d
   return fit;
 }
 
+void SparseOptions::validate() const {
+  constexpr std::string_view w = "structure options";
+  check::non_negative(w, "sparse.threshold", threshold);
+  check::non_negative(w, "sparse.ridge", ridge);
+  check::at_least(w, "sparse.max_iterations", max_iterations, 1);
+  check::in_range(w, "sparse.min_unique_share", min_unique_share, 0.0, 1.0);
+  check::at_least(w, "sparse.max_exhaustive_columns", max_exhaustive_columns, 0);
+}
+
+void StructureOptions::validate() const {
+  constexpr std::string_view w = "structure options";
+  check::at_least(w, "max_lag", max_lag, 0);
+  check::at_least(w, "fitted_parameters", fitted_parameters, 0);
+  if (!(alpha > 0.0 && alpha < 1.0))
+    throw Error(fmt::format("structure options: alpha = {} (a significance level: above 0 and below 1)", alpha));
+  sparse.validate();
+  check::in_range(w, "min_share", min_share, 0.0, 1.0);
+  check::non_negative(w, "dt_s (0: no periodogram)", dt_s);
+  check::non_negative(w, "min_frequency_hz", min_frequency_hz);
+}
+
 SparseFit stlsq(const Eigen::MatrixXd& columns, const Eigen::VectorXd& y, const SparseOptions& options) {
+  options.validate();
   if (columns.rows() != y.size())
     throw Error(fmt::format("stlsq: {} rows of columns for {} residuals", columns.rows(), y.size()));
   require_finite(columns, "a candidate column");
@@ -538,6 +561,7 @@ std::string StructureReport::summary() const {
 
 StructureReport analyse_residual(const std::vector<Eigen::VectorXd>& segments, const std::vector<Candidate>& candidates,
                                  const StructureOptions& options, const Eigen::MatrixXd& nuisance) {
+  options.validate();
   const Eigen::VectorXd raw = concatenate(segments);
   const Eigen::Index n = raw.size();
   require_finite(raw, "the residual");

@@ -109,6 +109,10 @@ struct SparseOptions {
   double min_unique_share = 0.02;
   // Exhaustive subset check up to this many (non-constant) columns.
   int max_exhaustive_columns = 12;
+
+  // Throws dropfit::Error naming the field and value when one is out of
+  // range (NaN, negative, shares outside 0-1, no iteration); stlsq calls it.
+  void validate() const;
 };
 
 struct SparseFit {
@@ -227,6 +231,11 @@ struct StructureOptions {
   double min_share = 0.1;
   double dt_s = 0.0;               // sample spacing; 0 skips the periodogram
   double min_frequency_hz = 0.0;   // see periodogram_peak
+
+  // Throws dropfit::Error naming the field and value when one is out of
+  // range (negative lags or spacing, alpha outside (0, 1), NaN), and
+  // sparse.validate(); analyse_residual calls it.
+  void validate() const;
 };
 
 struct TermScore {

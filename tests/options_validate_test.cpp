@@ -10,6 +10,7 @@
 #include "calibration/calibration.h"
 #include "capture/tracking.h"
 #include "core/error.h"
+#include "diagnosis/structure.h"
 #include "forceplate/forceplate.h"
 #include "reconstruction/reconstruction.h"
 #include "trial/trial.h"
@@ -134,6 +135,30 @@ TEST(OptionsValidate, TrackingOptions) {
   o = {};
   o.max_lost_frames = -1;
   expect_error_naming([&] { dropfit::capture::MarkerTracker("cam1", {"a"}, {}, o); }, {"max_lost_frames", "-1"});
+}
+
+TEST(OptionsValidate, StructureOptions) {
+  using dropfit::diagnosis::StructureOptions;
+  EXPECT_NO_THROW(StructureOptions{}.validate());
+  StructureOptions o;
+  o.alpha = 0.0;
+  expect_error_naming([&] { o.validate(); }, {"structure options", "alpha", "0"});
+  o = {};
+  o.dt_s = -1e-3;
+  expect_error_naming([&] { o.validate(); }, {"dt_s", "-0.001"});
+  o = {};
+  o.sparse.max_iterations = 0;
+  expect_error_naming([&] { o.validate(); }, {"sparse.max_iterations", "0"});
+  o = {};
+  o.max_lag = 0;  // the calibration stage's choice: no whiteness test
+  EXPECT_NO_THROW(o.validate());
+  // At the entries.
+  o.min_share = kNaN;
+  const Eigen::VectorXd r = Eigen::VectorXd::LinSpaced(50, -1.0, 1.0);
+  expect_error_naming([&] { dropfit::diagnosis::analyse_residual(r, {}, o); }, {"min_share", "nan"});
+  dropfit::diagnosis::SparseOptions sp;
+  sp.ridge = -1.0;
+  expect_error_naming([&] { dropfit::diagnosis::stlsq(Eigen::MatrixXd::Ones(50, 1), r, sp); }, {"sparse.ridge", "-1"});
 }
 
 }  // namespace
