@@ -35,7 +35,7 @@ Session make_session() {
   for (int t = 0; t < 3; ++t) {
     const std::string id = fmt::format("trial{}", t + 1);
     m.trials.push_back({id, "trials/" + id});
-    TrialData trial;
+    TrialRecording trial;
     trial.spec = m.trials.back();
     trial.tracks.points = m.video.points;
     trial.tracks.cameras = m.video.cameras;

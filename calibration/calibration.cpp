@@ -12,6 +12,7 @@
 
 #include "calibration/triangulation.h"
 #include "core/error.h"
+#include "core/validate.h"
 
 namespace dropfit::calibration {
 namespace {
@@ -293,60 +294,42 @@ Camera Camera::from_image_from_lab(std::string name, const Matrix34d& image_from
 
 // ---- fit_dlt ----------------------------------------------------------------
 
-DltFit fit_dlt(const std::string& camera_name, const std::vector<Correspondence>& points,
-               const DltOptions& options) {
-  const std::string label = label_of(camera_name);
-  const int n = static_cast<int>(points.size());
-  if (options.fit_distortion &&
-      (options.radial_terms < 0 || options.radial_terms > 3 || (options.radial_terms == 0 && !options.tangential)))
-    throw Error(fmt::format("{}: lens distortion needs 1 to 3 radial terms or the tangential ones ({} radial given)",
-                            label, options.radial_terms));
-  const int n_params = parameter_count(options);
-  const int min_points = min_fit_points(options);
-  const char* model = options.fit_distortion ? "DLT with lens distortion" : "11-parameter DLT";
-  if (n < min_points)
-    throw Error(fmt::format("{}: {} calibration point{} given; the {} ({} parameters) needs at least {}", label,
-                            n, n == 1 ? "" : "s", model, n_params, min_points));
-  for (const auto& p : points)
-    if (!p.lab_m.allFinite() || !p.image_px.allFinite())
-      throw Error(fmt::format("{}: calibration point '{}' has a coordinate that is not a finite number", label,
-                              p.id));
+namespace {
 
-  // Geometry: the principal axes of the lab points' scatter, whose
-  // eigenvalues are the squared RMS spreads along them (the singular values
-  // of the centred points, squared, over n).
-  std::vector<Eigen::Vector3d> lab(points.size());
-  std::vector<Eigen::Vector2d> image(points.size());
-  for (int i = 0; i < n; ++i) {
-    lab[i] = points[i].lab_m;
-    image[i] = points[i].image_px;
-  }
-  const Normalisation<3> lab_norm = normalisation(lab);
-  const Normalisation<2> image_norm = normalisation(image);
-  {
-    Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
-    for (const auto& X : lab) scatter.noalias() += (X - lab_norm.centroid) * (X - lab_norm.centroid).transpose();
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen;
-    eigen.computeDirect(scatter / n, Eigen::EigenvaluesOnly);
-    // RMS spread along the principal axes, largest first.
-    const Eigen::Vector3d s = eigen.eigenvalues().cwiseMax(0.0).cwiseSqrt().reverse();
-    constexpr double kFlat = 0.01;  // RMS off-axis spread below 1 % of the largest
-    if (!(s[0] > 0.0))
-      throw Error(fmt::format("{}: the {} calibration points all lie at one lab position", label, n));
-    if (s[1] < kFlat * s[0])
-      throw Error(fmt::format(
-          "{}: the {} calibration points are (nearly) collinear (RMS {:.1f} mm off their line over an RMS "
-          "spread of {:.0f} mm); the {} needs points spread in three dimensions",
-          label, n, 1e3 * std::hypot(s[1], s[2]), 1e3 * s[0], model));
-    if (s[2] < kFlat * s[0])
-      throw Error(fmt::format(
-          "{}: the {} calibration points are (nearly) coplanar (RMS {:.1f} mm off their plane over an RMS "
-          "spread of {:.0f} mm); the {} needs points off one plane",
-          label, n, 1e3 * s[2], 1e3 * s[0], model));
-  }
-  if (!(image_norm.scale > 0.0))
-    throw Error(fmt::format("{}: the {} calibration points all have the same pixel position", label, n));
+// The lab points' geometry for a DLT (fit_dlt): the principal axes of their
+// scatter, whose eigenvalues are the squared RMS spreads along them (the
+// singular values of the centred points, squared, over n). Throws naming the
+// camera when the points are at one position, collinear or coplanar.
+void check_fit_geometry(const std::string& label, const char* model, const std::vector<Eigen::Vector3d>& lab,
+                        const Normalisation<3>& lab_norm) {
+  const int n = static_cast<int>(lab.size());
+  Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+  for (const auto& X : lab) scatter.noalias() += (X - lab_norm.centroid) * (X - lab_norm.centroid).transpose();
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen;
+  eigen.computeDirect(scatter / n, Eigen::EigenvaluesOnly);
+  // RMS spread along the principal axes, largest first.
+  const Eigen::Vector3d s = eigen.eigenvalues().cwiseMax(0.0).cwiseSqrt().reverse();
+  constexpr double kFlat = 0.01;  // RMS off-axis spread below 1 % of the largest
+  if (!(s[0] > 0.0))
+    throw Error(fmt::format("{}: the {} calibration points all lie at one lab position", label, n));
+  if (s[1] < kFlat * s[0])
+    throw Error(fmt::format(
+        "{}: the {} calibration points are (nearly) collinear (RMS {:.1f} mm off their line over an RMS "
+        "spread of {:.0f} mm); the {} needs points spread in three dimensions",
+        label, n, 1e3 * std::hypot(s[1], s[2]), 1e3 * s[0], model));
+  if (s[2] < kFlat * s[0])
+    throw Error(fmt::format(
+        "{}: the {} calibration points are (nearly) coplanar (RMS {:.1f} mm off their plane over an RMS "
+        "spread of {:.0f} mm); the {} needs points off one plane",
+        label, n, 1e3 * s[2], 1e3 * s[0], model));
+}
 
+// The linear DLT of fit_dlt in normalised coordinates: q[0..10] of Q with
+// Q(2,3) = 1. Throws naming the camera when the points do not determine it.
+void linear_dlt(const std::string& label, const std::vector<Eigen::Vector3d>& lab,
+                const std::vector<Eigen::Vector2d>& image, const Normalisation<3>& lab_norm,
+                const Normalisation<2>& image_norm, double q[11]) {
+  const int n = static_cast<int>(lab.size());
   // Linear DLT in normalised coordinates: the homogeneous 2n x 12 system
   // A p = 0 solved in the least-squares sense with |p| = 1 (p the right
   // singular vector of the smallest singular value; H&Z algorithm 7.1).
@@ -381,8 +364,43 @@ DltFit fit_dlt(const std::string& camera_name, const std::vector<Correspondence>
   const Eigen::Matrix<double, 12, 1> p = eigen.eigenvectors().col(0);  // |p| = 1
   if (!(std::abs(p[11]) > 1e-8))
     throw Error(fmt::format("{}: the calibration points' centroid lies in the camera's principal plane", label));
-  double q[11];
   for (int k = 0; k < 11; ++k) q[k] = p[k] / p[11];
+}
+
+}  // namespace
+
+DltFit fit_dlt(const std::string& camera_name, const std::vector<Correspondence>& points,
+               const DltOptions& options) {
+  const std::string label = label_of(camera_name);
+  const int n = static_cast<int>(points.size());
+  if (options.fit_distortion &&
+      (options.radial_terms < 0 || options.radial_terms > 3 || (options.radial_terms == 0 && !options.tangential)))
+    throw Error(fmt::format("{}: lens distortion needs 1 to 3 radial terms or the tangential ones ({} radial given)",
+                            label, options.radial_terms));
+  const int n_params = parameter_count(options);
+  const int min_points = min_fit_points(options);
+  const char* model = options.fit_distortion ? "DLT with lens distortion" : "11-parameter DLT";
+  if (n < min_points)
+    throw Error(fmt::format("{}: {} calibration point{} given; the {} ({} parameters) needs at least {}", label,
+                            n, n == 1 ? "" : "s", model, n_params, min_points));
+  for (const auto& p : points)
+    if (!p.lab_m.allFinite() || !p.image_px.allFinite())
+      throw Error(fmt::format("{}: calibration point '{}' has a coordinate that is not a finite number", label,
+                              p.id));
+
+  std::vector<Eigen::Vector3d> lab(points.size());
+  std::vector<Eigen::Vector2d> image(points.size());
+  for (int i = 0; i < n; ++i) {
+    lab[i] = points[i].lab_m;
+    image[i] = points[i].image_px;
+  }
+  const Normalisation<3> lab_norm = normalisation(lab);
+  const Normalisation<2> image_norm = normalisation(image);
+  check_fit_geometry(label, model, lab, lab_norm);
+  if (!(image_norm.scale > 0.0))
+    throw Error(fmt::format("{}: the {} calibration points all have the same pixel position", label, n));
+  double q[11];
+  linear_dlt(label, lab, image, lab_norm, image_norm, q);
 
   // Back to lab metres and pixels: P = U^-1 Q T.
   Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
@@ -435,79 +453,57 @@ DltFit fit_dlt(const std::string& camera_name, const std::vector<Correspondence>
 
 // ---- calibrate --------------------------------------------------------------
 
-CalibrationResult calibrate(const std::vector<Marker>& markers, const std::vector<CameraView>& views,
-                            const CalibrationOptions& options) {
-  if (views.size() < 2)
-    throw Error(fmt::format("calibration needs two or more cameras to reconstruct points; {} given", views.size()));
-  const int n_markers = static_cast<int>(markers.size());
-  const int n_cameras = static_cast<int>(views.size());
-  std::unordered_map<std::string, int> index;
-  for (int m = 0; m < n_markers; ++m) {
-    if (!index.emplace(markers[m].id, m).second)
-      throw Error(fmt::format("calibration marker '{}' is listed twice", markers[m].id));
-    if (!markers[m].lab_m.allFinite())
-      throw Error(fmt::format("calibration marker '{}' has a lab coordinate that is not a finite number",
-                              markers[m].id));
+namespace {
+
+// The markers as every camera saw them, for calibrate: fits, triangulation
+// errors and the leave-one-out passes.
+class Calibrator {
+ public:
+  Calibrator(const std::vector<Marker>& markers, const std::vector<CameraView>& views)
+      : markers_(markers), views_(views), n_markers_(static_cast<int>(markers.size())),
+        n_cameras_(static_cast<int>(views.size())) {
+    std::unordered_map<std::string, int> index;
+    for (int m = 0; m < n_markers_; ++m) {
+      if (!index.emplace(markers[m].id, m).second)
+        throw Error(fmt::format("calibration marker '{}' is listed twice", markers[m].id));
+      if (!markers[m].lab_m.allFinite())
+        throw Error(fmt::format("calibration marker '{}' has a lab coordinate that is not a finite number",
+                                markers[m].id));
+    }
+    // seen_[c][m]: marker m's pixel in camera c, NaN when not seen.
+    seen_.assign(n_cameras_, std::vector<Eigen::Vector2d>(n_markers_, Eigen::Vector2d::Constant(kNaN)));
+    for (int c = 0; c < n_cameras_; ++c) {
+      for (const auto& [id, px] : views[c].observations) {
+        const auto it = index.find(id);
+        if (it == index.end())
+          throw Error(fmt::format("{}: observes marker '{}', which the calibration frame does not list",
+                                  label_of(views[c].name), id));
+        if (seen_[c][it->second].allFinite())
+          throw Error(fmt::format("{}: marker '{}' is observed twice", label_of(views[c].name), id));
+        if (px.allFinite()) seen_[c][it->second] = px;
+      }
+    }
+    px_.resize(n_cameras_);
   }
 
-  // seen[c][m]: marker m's pixel in camera c, NaN when not seen.
-  std::vector<std::vector<Eigen::Vector2d>> seen(
-      n_cameras, std::vector<Eigen::Vector2d>(n_markers, Eigen::Vector2d::Constant(kNaN)));
-  for (int c = 0; c < n_cameras; ++c) {
-    for (const auto& [id, px] : views[c].observations) {
-      const auto it = index.find(id);
-      if (it == index.end())
-        throw Error(fmt::format("{}: observes marker '{}', which the calibration frame does not list",
-                                label_of(views[c].name), id));
-      if (seen[c][it->second].allFinite())
-        throw Error(fmt::format("{}: marker '{}' is observed twice", label_of(views[c].name), id));
-      if (px.allFinite()) seen[c][it->second] = px;
-    }
-  }
+  int n_markers() const { return n_markers_; }
+  int n_cameras() const { return n_cameras_; }
+  bool seen(int c, int m) const { return seen_[c][m].allFinite(); }
 
   // Camera c fitted on the fit markers it sees, less those excluded.
-  const auto fit_camera = [&](int c, const std::vector<char>& excluded, const DltOptions& dlt) {
+  DltFit fit_camera(int c, const std::vector<char>& excluded, const DltOptions& dlt) const {
     std::vector<Correspondence> fit_points;
-    for (int m = 0; m < n_markers; ++m)
-      if (!markers[m].is_check && !excluded[m] && seen[c][m].allFinite())
-        fit_points.push_back({markers[m].id, markers[m].lab_m, seen[c][m]});
-    return fit_dlt(views[c].name, fit_points, dlt);
-  };
-  std::vector<Eigen::Vector2d> px(n_cameras);
+    for (int m = 0; m < n_markers_; ++m)
+      if (!markers_[m].is_check && !excluded[m] && seen_[c][m].allFinite())
+        fit_points.push_back({markers_[m].id, markers_[m].lab_m, seen_[c][m]});
+    return fit_dlt(views_[c].name, fit_points, dlt);
+  }
+
   // Marker m triangulated with `cameras`: reconstructed minus known.
-  const auto error_of = [&](int m, const std::vector<Camera>& cameras) -> Eigen::Vector3d {
-    for (int c = 0; c < n_cameras; ++c) px[c] = seen[c][m];
-    return triangulate(cameras, px, true).lab_m - markers[m].lab_m;
-  };
-
-  CalibrationResult result;
-  std::vector<Camera> cameras;
-  const std::vector<char> none(n_markers, 0);
-  for (int c = 0; c < n_cameras; ++c) {
-    result.cameras.push_back(fit_camera(c, none, options.dlt));
-    cameras.push_back(result.cameras.back().camera);
+  Eigen::Vector3d error_of(int m, const std::vector<Camera>& cameras) {
+    for (int c = 0; c < n_cameras_; ++c) px_[c] = seen_[c][m];
+    return triangulate(cameras, px_, true).lab_m - markers_[m].lab_m;
   }
-
-  // Check markers.
-  Eigen::Vector3d sum_sq = Eigen::Vector3d::Zero();
-  for (int m = 0; m < n_markers; ++m) {
-    if (!markers[m].is_check) continue;
-    const Eigen::Vector3d error = error_of(m, cameras);
-    if (!error.allFinite()) {
-      result.check_unseen.push_back(markers[m].id);
-      continue;
-    }
-    int n_seeing = 0;
-    for (int c = 0; c < n_cameras; ++c) n_seeing += seen[c][m].allFinite() ? 1 : 0;
-    result.check_points.push_back({markers[m].id, error, n_seeing});
-    sum_sq += error.cwiseAbs2();
-    const double largest = error.cwiseAbs().maxCoeff();
-    result.check_max_m = std::isnan(result.check_max_m) ? largest : std::max(result.check_max_m, largest);
-  }
-  if (!result.check_points.empty())
-    result.check_rms_m = (sum_sq / static_cast<double>(result.check_points.size())).cwiseSqrt();
-
-  if (!options.leave_one_out) return result;
 
   // One leave-one-out pass with the `excluded` markers out of every fit: per
   // fit marker m (not excluded), every camera that sees it is refitted
@@ -518,30 +514,30 @@ CalibrationResult calibrate(const std::vector<Marker>& markers, const std::vecto
     std::vector<Camera> base;  // every camera fitted without the excluded markers
     std::vector<double> residual_m, refit_rms_px;
   };
-  const auto leave_each_out = [&](const std::vector<char>& excluded, const DltOptions& dlt) {
+  Pass leave_each_out(const std::vector<char>& excluded, const DltOptions& dlt) {
     Pass pass;
-    pass.residual_m.assign(n_markers, kNaN);
-    pass.refit_rms_px.assign(n_markers, kNaN);
+    pass.residual_m.assign(n_markers_, kNaN);
+    pass.refit_rms_px.assign(n_markers_, kNaN);
     std::vector<DltFit> base_fits;
     try {
-      for (int c = 0; c < n_cameras; ++c) base_fits.push_back(fit_camera(c, excluded, dlt));
+      for (int c = 0; c < n_cameras_; ++c) base_fits.push_back(fit_camera(c, excluded, dlt));
     } catch (const Error&) {
       return pass;  // too few markers left
     }
     for (const auto& f : base_fits) pass.base.push_back(f.camera);
     pass.ok = true;
     std::vector<char> without = excluded;
-    for (int m = 0; m < n_markers; ++m) {
-      if (markers[m].is_check || excluded[m]) continue;
+    for (int m = 0; m < n_markers_; ++m) {
+      if (markers_[m].is_check || excluded[m]) continue;
       without[m] = 1;
       std::vector<Camera> refitted = pass.base;
       double sum_sq_px = 0.0;
       int count = 0;
       bool ok = true;
-      for (int c = 0; c < n_cameras && ok; ++c) {
+      for (int c = 0; c < n_cameras_ && ok; ++c) {
         DltFit refit;
         const DltFit* fit = &base_fits[c];
-        if (seen[c][m].allFinite()) {
+        if (seen_[c][m].allFinite()) {
           try {
             refit = fit_camera(c, without, dlt);
           } catch (const Error&) {
@@ -561,10 +557,44 @@ CalibrationResult calibrate(const std::vector<Marker>& markers, const std::vecto
       if (error.allFinite()) pass.residual_m[m] = error.norm();
     }
     return pass;
-  };
+  }
 
+ private:
+  const std::vector<Marker>& markers_;
+  const std::vector<CameraView>& views_;
+  int n_markers_, n_cameras_;
+  std::vector<std::vector<Eigen::Vector2d>> seen_;
+  std::vector<Eigen::Vector2d> px_;  // scratch for error_of
+};
+
+// The check markers' errors with `cameras` into result.
+void check_marker_errors(Calibrator& cal, const std::vector<Marker>& markers, const std::vector<Camera>& cameras,
+                         CalibrationResult& result) {
+  Eigen::Vector3d sum_sq = Eigen::Vector3d::Zero();
+  for (int m = 0; m < cal.n_markers(); ++m) {
+    if (!markers[m].is_check) continue;
+    const Eigen::Vector3d error = cal.error_of(m, cameras);
+    if (!error.allFinite()) {
+      result.check_unseen.push_back(markers[m].id);
+      continue;
+    }
+    int n_seeing = 0;
+    for (int c = 0; c < cal.n_cameras(); ++c) n_seeing += cal.seen(c, m) ? 1 : 0;
+    result.check_points.push_back({markers[m].id, error, n_seeing});
+    sum_sq += error.cwiseAbs2();
+    const double largest = error.cwiseAbs().maxCoeff();
+    result.check_max_m = std::isnan(result.check_max_m) ? largest : std::max(result.check_max_m, largest);
+  }
+  if (!result.check_points.empty())
+    result.check_rms_m = (sum_sq / static_cast<double>(result.check_points.size())).cwiseSqrt();
+}
+
+// Leave-one-out residuals and outliers (calibration.h) into result.
+void leave_one_out_and_outliers(Calibrator& cal, const std::vector<Marker>& markers,
+                                const CalibrationOptions& options, CalibrationResult& result) {
+  const int n_markers = cal.n_markers();
   std::vector<char> excluded(n_markers, 0);
-  Pass pass = leave_each_out(excluded, options.dlt);
+  Calibrator::Pass pass = cal.leave_each_out(excluded, options.dlt);
   int n_fit = 0;
   for (int m = 0; m < n_markers; ++m) {
     if (markers[m].is_check) continue;
@@ -577,7 +607,7 @@ CalibrationResult calibrate(const std::vector<Marker>& markers, const std::vecto
   DltOptions screen = options.dlt;
   if (screen.fit_distortion && n_fit - (min_fit_points(screen) + 2) < 1) {
     screen.fit_distortion = false;  // too few markers to screen with distortion
-    pass = leave_each_out(excluded, screen);
+    pass = cal.leave_each_out(excluded, screen);
   }
   const int steps = std::min(options.max_outliers, n_fit - (min_fit_points(screen) + 2));
   std::vector<int> aside;
@@ -588,7 +618,7 @@ CalibrationResult calibrate(const std::vector<Marker>& markers, const std::vecto
         best = m;
     if (best < 0) break;
     excluded[best] = 1;
-    Pass next = leave_each_out(excluded, screen);
+    Calibrator::Pass next = cal.leave_each_out(excluded, screen);
     if (!next.ok) break;
     aside.push_back(best);
     pass = std::move(next);
@@ -598,19 +628,57 @@ CalibrationResult calibrate(const std::vector<Marker>& markers, const std::vecto
   std::vector<double> kept;
   for (int m = 0; m < n_markers; ++m)
     if (!markers[m].is_check && !excluded[m] && std::isfinite(pass.residual_m[m])) kept.push_back(pass.residual_m[m]);
-  if (kept.size() >= 2) {
-    result.outlier_baseline_m = median(kept);
-    std::sort(aside.begin(), aside.end());  // frame order
-    for (int m : aside) {
-      const Eigen::Vector3d error = error_of(m, pass.base);
-      if (!error.allFinite()) continue;
-      const double e = error.norm();
-      if (e > options.outlier_ratio * result.outlier_baseline_m && e > options.min_outlier_m) {
-        result.outliers.push_back(markers[m].id);
-        result.outlier_error_m.push_back(e);
-      }
+  if (kept.size() < 2) return;
+  result.outlier_baseline_m = median(kept);
+  std::sort(aside.begin(), aside.end());  // frame order
+  for (int m : aside) {
+    const Eigen::Vector3d error = cal.error_of(m, pass.base);
+    if (!error.allFinite()) continue;
+    const double e = error.norm();
+    if (e > options.outlier_ratio * result.outlier_baseline_m && e > options.min_outlier_m) {
+      result.outliers.push_back(markers[m].id);
+      result.outlier_error_m.push_back(e);
     }
   }
+}
+
+}  // namespace
+
+void DltOptions::validate() const {
+  constexpr std::string_view w = "calibration options";
+  check::int_in_range(w, "dlt.radial_terms", radial_terms, 0, 3);
+  if (fit_distortion && radial_terms == 0 && !tangential)
+    throw Error("calibration options: dlt.fit_distortion with dlt.radial_terms = 0 and dlt.tangential = false "
+                "(no distortion term to fit)");
+}
+
+void CalibrationOptions::validate() const {
+  constexpr std::string_view w = "calibration options";
+  dlt.validate();
+  if (!(std::isfinite(outlier_ratio) && outlier_ratio > 1.0))
+    throw Error(fmt::format("calibration options: outlier_ratio = {} (must be a finite number above 1: an "
+                            "outlier's error is that many times the median)",
+                            outlier_ratio));
+  check::non_negative(w, "min_outlier_m", min_outlier_m);
+  check::at_least(w, "max_outliers", max_outliers, 0);
+}
+
+CalibrationResult calibrate(const std::vector<Marker>& markers, const std::vector<CameraView>& views,
+                            const CalibrationOptions& options) {
+  options.validate();
+  if (views.size() < 2)
+    throw Error(fmt::format("calibration needs two or more cameras to reconstruct points; {} given", views.size()));
+  Calibrator cal(markers, views);
+  CalibrationResult result;
+  std::vector<Camera> cameras;
+  const std::vector<char> none(cal.n_markers(), 0);
+  for (int c = 0; c < cal.n_cameras(); ++c) {
+    result.cameras.push_back(cal.fit_camera(c, none, options.dlt));
+    cameras.push_back(result.cameras.back().camera);
+  }
+  check_marker_errors(cal, markers, cameras, result);
+  if (!options.leave_one_out) return result;
+  leave_one_out_and_outliers(cal, markers, options, result);
   return result;
 }
 

@@ -84,6 +84,10 @@ struct DltOptions {
   // (k1 k2 k3), and whether p1 p2 are; the others are held at zero.
   int radial_terms = 1;
   bool tangential = true;
+
+  // Throws dropfit::Error naming the field and value when radial_terms is
+  // outside 0-3, or distortion is asked for with no term to fit.
+  void validate() const;
 };
 
 struct DltFit {
@@ -157,6 +161,11 @@ struct CalibrationOptions {
   double min_outlier_m = 0.002;
   int max_outliers = 2;
   bool leave_one_out = true;  // leave-one-out and outliers; most of the time
+
+  // Throws dropfit::Error naming the field and value when one is out of
+  // range (NaN, a ratio of 1 or less, a negative distance or count), and
+  // dlt.validate(); calibrate() calls it.
+  void validate() const;
 };
 
 struct CalibrationResult {

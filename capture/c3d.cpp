@@ -189,6 +189,52 @@ void read_parameters(const Reader& r, std::size_t start, std::size_t end, C3dFil
   }
 }
 
+// The data section (the counts in out already checked against the file):
+// frame by frame, every point's X Y Z and fourth word, then the analog
+// samples (sample-major), into out.points and out.analog_stored.
+void read_data_section(const Reader& r, std::size_t data_start, std::size_t frame_bytes, bool analog_unsigned,
+                       C3dFile& out) {
+  const std::size_t width = out.float_data ? 4 : 2;
+  const double scale = std::abs(out.point_scale);
+  for (int f = 0; f < out.n_frames; ++f) {
+    std::size_t at = data_start + static_cast<std::size_t>(f) * frame_bytes;
+    for (int p = 0; p < out.n_points; ++p) {
+      double xyz[3];
+      double fourth = 0.0;
+      if (out.float_data) {
+        for (int k = 0; k < 3; ++k) xyz[k] = r.f32(at + 4 * k, "data section");
+        fourth = r.f32(at + 12, "data section");
+      } else {
+        for (int k = 0; k < 3; ++k) xyz[k] = r.i16(at + 2 * k, "data section") * scale;
+        fourth = r.i16(at + 6, "data section");
+      }
+      at += 4 * width;
+      // The fourth word as a 16-bit integer: negative = invalid point.
+      const double word = std::isfinite(fourth) ? std::trunc(fourth) : -1.0;
+      const bool valid = word >= 0.0 && std::isfinite(xyz[0]) && std::isfinite(xyz[1]) && std::isfinite(xyz[2]);
+      for (int k = 0; k < 3; ++k) out.points(f, 4 * p + k) = valid ? xyz[k] : kNaN;
+      out.points(f, 4 * p + 3) =
+          valid ? static_cast<double>(static_cast<long long>(std::min(word, 65535.0)) & 0xFF) * scale : kNaN;
+    }
+    for (int s = 0; s < out.analog_per_frame; ++s) {
+      const Eigen::Index row = static_cast<Eigen::Index>(f) * out.analog_per_frame + s;
+      for (int c = 0; c < out.n_analog_channels; ++c) {
+        double v = 0.0;
+        if (out.float_data)
+          v = r.f32(at, "data section");
+        else
+          v = analog_unsigned ? static_cast<double>(r.u16(at, "data section"))
+                              : static_cast<double>(r.i16(at, "data section"));
+        if (!std::isfinite(v))
+          r.fail("data section", fmt::format("analog channel {} frame {} sample {} is not finite", c + 1,
+                                             out.first_frame + f, s + 1));
+        out.analog_stored(row, c) = v;
+        at += width;
+      }
+    }
+  }
+}
+
 int parameter_int(const C3dFile& f, std::string_view group, std::string_view name, int fallback) {
   const C3dParameter* p = f.find(group, name);
   if (!p || p->numbers.empty()) return fallback;
@@ -298,47 +344,10 @@ C3dFile parse_c3d(std::string_view bytes, const std::string& name) {
   if (const C3dParameter* fmt_p = out.find("ANALOG", "FORMAT"); fmt_p && !fmt_p->strings.empty())
     analog_unsigned = upper(fmt_p->strings[0]) == "UNSIGNED";
 
-  const double scale = std::abs(out.point_scale);
   out.points.resize(out.n_frames, 4 * out.n_points);
   out.analog_stored.resize(static_cast<Eigen::Index>(out.n_frames) * out.analog_per_frame, out.n_analog_channels);
   if (frame_bytes == 0) return out;  // no points and no analog channels: nothing to read
-  for (int f = 0; f < out.n_frames; ++f) {
-    std::size_t at = data_start + static_cast<std::size_t>(f) * frame_bytes;
-    for (int p = 0; p < out.n_points; ++p) {
-      double xyz[3];
-      double fourth = 0.0;
-      if (out.float_data) {
-        for (int k = 0; k < 3; ++k) xyz[k] = r.f32(at + 4 * k, "data section");
-        fourth = r.f32(at + 12, "data section");
-      } else {
-        for (int k = 0; k < 3; ++k) xyz[k] = r.i16(at + 2 * k, "data section") * scale;
-        fourth = r.i16(at + 6, "data section");
-      }
-      at += 4 * width;
-      // The fourth word as a 16-bit integer: negative = invalid point.
-      const double word = std::isfinite(fourth) ? std::trunc(fourth) : -1.0;
-      const bool valid = word >= 0.0 && std::isfinite(xyz[0]) && std::isfinite(xyz[1]) && std::isfinite(xyz[2]);
-      for (int k = 0; k < 3; ++k) out.points(f, 4 * p + k) = valid ? xyz[k] : kNaN;
-      out.points(f, 4 * p + 3) =
-          valid ? static_cast<double>(static_cast<long long>(std::min(word, 65535.0)) & 0xFF) * scale : kNaN;
-    }
-    for (int s = 0; s < out.analog_per_frame; ++s) {
-      const Eigen::Index row = static_cast<Eigen::Index>(f) * out.analog_per_frame + s;
-      for (int c = 0; c < out.n_analog_channels; ++c) {
-        double v = 0.0;
-        if (out.float_data)
-          v = r.f32(at, "data section");
-        else
-          v = analog_unsigned ? static_cast<double>(r.u16(at, "data section"))
-                              : static_cast<double>(r.i16(at, "data section"));
-        if (!std::isfinite(v))
-          r.fail("data section", fmt::format("analog channel {} frame {} sample {} is not finite", c + 1,
-                                             out.first_frame + f, s + 1));
-        out.analog_stored(row, c) = v;
-        at += width;
-      }
-    }
-  }
+  read_data_section(r, data_start, frame_bytes, analog_unsigned, out);
   return out;
 }
 

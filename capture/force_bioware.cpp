@@ -103,11 +103,17 @@ std::vector<Field> header_values(const Line& l) {
   return values;
 }
 
-BioWareExport parse_bioware(const std::string& path, const std::vector<Line>& lines, std::size_t header,
-                            BioWareLines& where) {
-  BioWareExport ex;
+// "Samples (#):" of the free header lines: the count and where it stands.
+struct SamplesLine {
   std::optional<long long> samples;
-  int samples_line = 0, samples_column = 0;
+  int line = 0, column = 0;
+};
+
+// The free header lines before the column header (`header`): version and
+// rate into ex (rate's place into where), the sample count returned.
+SamplesLine read_bioware_header(const std::string& path, const std::vector<Line>& lines, std::size_t header,
+                                BioWareExport& ex, BioWareLines& where) {
+  SamplesLine samples;
   bool have_rate = false;
   for (std::size_t i = 0; i < header; ++i) {
     const Line& l = lines[i];
@@ -139,22 +145,24 @@ BioWareExport parse_bioware(const std::string& path, const std::vector<Line>& li
     } else if (iequals_prefix(key, "Samples")) {  // "Samples (#):" or "Samples:"
       const std::vector<Field> values = header_values(l);
       if (values.empty()) continue;
-      samples = parse_integer(path, l.number, values[0], "Samples");
-      samples_line = l.number;
-      samples_column = values[0].column;
+      samples.samples = parse_integer(path, l.number, values[0], "Samples");
+      samples.line = l.number;
+      samples.column = values[0].column;
       for (const Field& v : values)
-        if (parse_integer(path, l.number, v, "Samples") != *samples)
+        if (parse_integer(path, l.number, v, "Samples") != *samples.samples)
           throw InputError(path, l.number, v.column, "Samples",
-                           fmt::format("columns with different sample counts ({} and {})", *samples, v.text));
+                           fmt::format("columns with different sample counts ({} and {})", *samples.samples, v.text));
     }
   }
   if (!have_rate) throw InputError(path, 0, 0, "Rate (Hz)", "missing header line 'Rate (Hz):<TAB>rate'");
+  return samples;
+}
 
-  // Column header: blocks of Fx..Ay, one per plate.
-  const Line& head = lines[header];
-  where.header_line = head.number;
-  std::vector<Field> cols = split_fields(head.text, '\t');
-  drop_trailing_empty(cols);
+// The column header `head` (fields in `cols`): blocks of Fx..Ay, one per
+// plate, each column's field index (-1 absent); which are present and the
+// plate count into ex.
+std::vector<std::array<int, 8>> resultant_blocks(const std::string& path, const Line& head,
+                                                 const std::vector<Field>& cols, BioWareExport& ex) {
   std::vector<std::array<int, 8>> blocks;
   std::vector<int> block_start;
   for (std::size_t i = 1; i < cols.size(); ++i) {
@@ -183,14 +191,14 @@ BioWareExport parse_bioware(const std::string& path, const std::vector<Line>& li
     }
   }
   ex.n_plates = static_cast<int>(blocks.size());
-  where.columns = blocks;
-  int last = 0;
-  for (const auto& b : blocks)
-    for (int i : b) last = std::max(last, i);
+  return blocks;
+}
 
-  // Units.
+// The units line after the column header: per plate and column, the factor to SI.
+std::vector<std::array<double, 8>> unit_scales(const std::string& path, const std::vector<Line>& lines,
+                                               std::size_t header, const std::vector<std::array<int, 8>>& blocks) {
   if (header + 1 >= lines.size())
-    throw InputError(path, head.number + 1, 0, "", "expected a units line after the column header");
+    throw InputError(path, lines[header].number + 1, 0, "", "expected a units line after the column header");
   const Line& units_line = lines[header + 1];
   const std::vector<Field> units = split_fields(units_line.text, '\t');
   std::vector<std::array<double, 8>> scale(blocks.size());
@@ -210,6 +218,25 @@ BioWareExport parse_bioware(const std::string& path, const std::vector<Line>& li
       scale[b][c] = *s;
     }
   }
+  return scale;
+}
+
+BioWareExport parse_bioware(const std::string& path, const std::vector<Line>& lines, std::size_t header,
+                            BioWareLines& where) {
+  BioWareExport ex;
+  const SamplesLine samples = read_bioware_header(path, lines, header, ex, where);
+
+  // Column header: blocks of Fx..Ay, one per plate.
+  const Line& head = lines[header];
+  where.header_line = head.number;
+  std::vector<Field> cols = split_fields(head.text, '\t');
+  drop_trailing_empty(cols);
+  const std::vector<std::array<int, 8>> blocks = resultant_blocks(path, head, cols, ex);
+  where.columns = blocks;
+  int last = 0;
+  for (const auto& b : blocks)
+    for (int i : b) last = std::max(last, i);
+  const std::vector<std::array<double, 8>> scale = unit_scales(path, lines, header, blocks);
 
   // Data.
   std::vector<double> t, res;
@@ -237,13 +264,14 @@ BioWareExport parse_bioware(const std::string& path, const std::vector<Line>& li
   }
   if (t.empty()) throw InputError(path, head.number, 0, "", "no data rows after the column header and units line");
   const long long rows = static_cast<long long>(t.size());
-  if (samples && *samples != rows)
-    throw InputError(path, samples_line, samples_column, "Samples",
-                     rows < *samples ? fmt::format("the header says {} samples but the record has only {} data rows "
-                                                   "(truncated record?)",
-                                                   *samples, rows)
-                                     : fmt::format("the header says {} samples but the record has {} data rows",
-                                                   *samples, rows));
+  if (samples.samples && *samples.samples != rows)
+    throw InputError(path, samples.line, samples.column, "Samples",
+                     rows < *samples.samples
+                         ? fmt::format("the header says {} samples but the record has only {} data rows "
+                                       "(truncated record?)",
+                                       *samples.samples, rows)
+                         : fmt::format("the header says {} samples but the record has {} data rows", *samples.samples,
+                                       rows));
   check_uniform_time(path, t, res, line_of, col_of, cols[0].text, ex.sample_rate_hz);
   const auto n = static_cast<Eigen::Index>(rows);
   ex.abs_time_s = Eigen::Map<const Eigen::VectorXd>(t.data(), n);

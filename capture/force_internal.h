@@ -5,7 +5,7 @@
 #include <string>
 #include <vector>
 
-#include "capture/session.h"
+#include "core/session.h"
 #include "capture/text_io.h"
 
 namespace dropfit::capture::detail {

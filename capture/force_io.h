@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "capture/c3d.h"
-#include "capture/session.h"
+#include "core/session.h"
 
 namespace dropfit::capture {
 

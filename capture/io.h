@@ -17,7 +17,7 @@
 #include <string>
 #include <vector>
 
-#include "capture/session.h"
+#include "core/session.h"
 
 namespace dropfit::capture {
 
@@ -157,7 +157,7 @@ int trigger_sample_from_fraction(double pretrigger_fraction, int n_samples);
 // Session::dlt_coefficients and frame.csv is optional (absent: no frame, no
 // images); with frame.csv present a camera without its <camera>.csv saw
 // none of the markers. DLTdv's offsets.csv beside a marker table is read
-// into TrialData::frame_offsets. A missing file is an InputError naming it.
+// into TrialRecording::frame_offsets. A missing file is an InputError naming it.
 // Reads only; never writes.
 Session read_session(const std::string& root);
 // The calibration part of read_session alone: fills session.frame, .images

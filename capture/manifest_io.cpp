@@ -231,13 +231,28 @@ class ManifestReader {
     }
     check_keys(root, "", {"session", "impactor", "mat", "video", "forceplate", "trial", "calibration"});
     Manifest m;
+    read_session(root, m);
+    read_calibration(root, m);
+    read_video(root, m);
+    read_impactor(root, m);
+    read_mat(root, m);
+    read_forceplate(root, m);
+    read_trials(root, m);
+    return m;
+  }
 
+ private:
+  // [session]: name and gravity (optional table).
+  void read_session(const toml::table& root, Manifest& m) {
     if (const toml::table* t = table(root, "session", false)) {
       check_keys(*t, "session", {"name", "gravity_m_s2"});
       m.name = string(*t, "session", "name", false).value_or("");
       m.gravity_m_s2 = number(*t, "session", "gravity_m_s2", Check::Positive, false).value_or(9.81);
     }
+  }
 
+  // [calibration]: a DLT coefficient file instead of the frame (optional).
+  void read_calibration(const toml::table& root, Manifest& m) {
     if (const toml::table* t = table(root, "calibration", false)) {
       check_keys(*t, "calibration", {"dlt_coefficients"});
       m.calibration.dlt_coefficients = string(*t, "calibration", "dlt_coefficients", false).value_or("");
@@ -249,7 +264,10 @@ class ManifestReader {
              fmt::format("\"{}\" is absolute; it is relative to the session folder",
                          m.calibration.dlt_coefficients));
     }
+  }
 
+  // [video]: cameras, frame rate, points, trigger frame, image origin.
+  void read_video(const toml::table& root, Manifest& m) {
     const toml::table& video = *table(root, "video", true);
     check_keys(video, "video",
                {"cameras", "frame_rate_hz", "points", "trigger_frame", "image_origin", "image_height_px"});
@@ -278,14 +296,20 @@ class ManifestReader {
              fmt::format("\"{}\" is not an image origin (expected \"top-left\" or \"bottom-left\")", *origin));
       }
     }
+  }
 
+  // [impactor]: mass, footprint and base markers (among video.points).
+  void read_impactor(const toml::table& root, Manifest& m) {
     const toml::table& imp = *table(root, "impactor", true);
     check_keys(imp, "impactor", {"mass_kg", "footprint_m", "base_markers", "base_marker_height_m"});
     m.impactor.mass_kg = *number(imp, "impactor", "mass_kg", Check::Positive, true);
     m.impactor.footprint_m = footprint(imp);
     m.impactor.base_markers = markers(imp, "impactor", "base_markers", m.video.points, true);
     m.impactor.base_marker_height_m = number(imp, "impactor", "base_marker_height_m", Check::Finite, false).value_or(0.0);
+  }
 
+  // [mat]: size, surface markers and layers.
+  void read_mat(const toml::table& root, Manifest& m) {
     const toml::table& mat = *table(root, "mat", true);
     check_keys(mat, "mat", {"length_m", "width_m", "surface_markers", "layers"});
     m.mat.length_m = *number(mat, "mat", "length_m", Check::Positive, true);
@@ -302,7 +326,10 @@ class ManifestReader {
       spec.mass_kg = *number(layer, prefix, "mass_kg", Check::NonNegative, true);
       m.mat.layers.push_back(spec);
     }
+  }
 
+  // [forceplate]: rate, trigger, geometry and plate number.
+  void read_forceplate(const toml::table& root, Manifest& m) {
     const toml::table& plate = *table(root, "forceplate", true);
     check_keys(plate, "forceplate",
                {"model", "sample_rate_hz", "trigger_threshold_n", "pretrigger_fraction", "a_m", "b_m", "az0_m",
@@ -316,7 +343,10 @@ class ManifestReader {
     m.forceplate.az0_m = *number(plate, "forceplate", "az0_m", Check::Finite, true);
     m.forceplate.mat_top_z_m = *number(plate, "forceplate", "mat_top_z_m", Check::Finite, true);
     m.forceplate.plate = static_cast<int>(integer(plate, "forceplate", "plate", 1, false).value_or(1));
+  }
 
+  // [[trial]]: ids (unique) and folders (relative).
+  void read_trials(const toml::table& root, Manifest& m) {
     const toml::array& trials = table_array(root, "", "trial");
     std::map<std::string, std::size_t> seen;
     for (std::size_t i = 0; i < trials.size(); ++i) {
@@ -337,10 +367,8 @@ class ManifestReader {
              fmt::format("duplicate trial id \"{}\" (also trial[{}])", spec.id, it->second));
       m.trials.push_back(spec);
     }
-    return m;
   }
 
- private:
   // Every position goes through lines_, so that it names the file's own
   // line and column where a ';'-separated line was split.
   [[noreturn]] void fail(const toml::source_region& where, const std::string& field, const std::string& reason) const {

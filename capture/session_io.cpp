@@ -58,7 +58,7 @@ Session read_session(const std::string& root) {
   const Manifest& m = s.manifest;
   read_session_calibration(root, s);
   for (const TrialSpec& spec : m.trials) {
-    TrialData trial;
+    TrialRecording trial;
     trial.spec = spec;
     trial.xypts_path = find_xypts((dir / spec.dir).string());
     trial.tracks = read_xypts(trial.xypts_path, m.video);
@@ -87,7 +87,7 @@ void write_session(const std::string& root, const Session& session, XyptsLayout 
   if (flip && !(m.video.image_height_px && *m.video.image_height_px > 0.0))
     throw Error("write_session: a bottom-left image origin needs video.image_height_px");
   for (std::size_t i = 0; i < session.trials.size(); ++i) {
-    const TrialData& t = session.trials[i];
+    const TrialRecording& t = session.trials[i];
     if (t.spec.id != m.trials[i].id || t.spec.dir != m.trials[i].dir)
       throw Error(fmt::format("write_session: trial {} ('{}' in '{}') differs from the manifest's ('{}' in '{}')", i,
                               t.spec.id, t.spec.dir, m.trials[i].id, m.trials[i].dir));
@@ -112,7 +112,7 @@ void write_session(const std::string& root, const Session& session, XyptsLayout 
   write_frame_csv((dir / "calibration" / "frame.csv").string(), session.frame);
   for (const CalibrationImage* image : images)
     write_camera_csv((dir / "calibration" / (image->camera + ".csv")).string(), *image);
-  for (const TrialData& t : session.trials) {
+  for (const TrialRecording& t : session.trials) {
     const fs::path trial_dir = dir / t.spec.dir;
     fs::create_directories(trial_dir, ec);
     if (ec) throw Error(fmt::format("write_session: cannot create {}: {}", trial_dir.string(), ec.message()));

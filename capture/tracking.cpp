@@ -17,6 +17,7 @@
 
 #include "core/error.h"
 #include "core/progress.h"
+#include "core/validate.h"
 
 namespace dropfit::capture {
 namespace {
@@ -181,7 +182,37 @@ class WindowScanner {
 
 // ---- detect_blobs -------------------------------------------------------------
 
+void DetectionOptions::validate() const {
+  constexpr std::string_view w = "tracking options";
+  check::in_range(w, "detection.threshold_fraction", threshold_fraction, 0.0, 1.0);
+  check::non_negative(w, "detection.min_contrast", min_contrast);
+  check::non_negative(w, "detection.min_area_px2", min_area_px2);
+  check::positive(w, "detection.max_area_px2", max_area_px2);
+  if (max_area_px2 < min_area_px2)
+    throw Error(fmt::format("tracking options: detection.max_area_px2 = {} (below detection.min_area_px2 = {})",
+                            max_area_px2, min_area_px2));
+  check::in_range(w, "detection.min_axis_ratio", min_axis_ratio, 0.0, 1.0);
+}
+
+void TrackingOptions::validate() const {
+  constexpr std::string_view w = "tracking options";
+  detection.validate();
+  check::positive(w, "gate_px", gate_px);
+  check::non_negative(w, "widen_px_per_frame", widen_px_per_frame);
+  check::positive(w, "max_gate_px", max_gate_px);
+  if (max_gate_px < gate_px)
+    throw Error(fmt::format("tracking options: max_gate_px = {} (below gate_px = {})", max_gate_px, gate_px));
+  check::at_least(w, "max_lost_frames", max_lost_frames, 0);
+  check::positive(w, "seed_radius_px", seed_radius_px);
+  check::in_range(w, "ambiguity_ratio", ambiguity_ratio, 1.0, 1e6);
+  check::in_range(w, "min_area_ratio", min_area_ratio, 0.0, 1.0);
+  check::in_range(w, "max_area_ratio", max_area_ratio, 1.0, 1e6);
+  check::in_range(w, "max_axis_ratio_drop", max_axis_ratio_drop, 0.0, 1.0);
+  check::in_range(w, "min_contrast_ratio", min_contrast_ratio, 0.0, 1.0);
+}
+
 std::vector<Blob> detect_blobs(const ImageView8& image, const DetectionOptions& options, PixelWindow window) {
+  options.validate();
   if (empty(window)) window = {0, 0, image.width, image.height};
   window = clip(window, image.width, image.height);
   std::vector<Blob> blobs;
@@ -551,9 +582,10 @@ struct MarkerTracker::Impl {
     return -1;
   }
 
-  void add_frame(const ImageView8& img) {
+  // Checks the frame against the first (and the seeds against its size),
+  // then makes room for its row; returns its index.
+  int begin_frame(const ImageView8& img) {
     const int frame = n_frames;
-    const int np = static_cast<int>(points.size());
     if (img.data == nullptr || img.width <= 0 || img.height <= 0) throw Error(fmt::format("{}: frame {} is empty", camera, frame));
     if (frame == 0) {
       width = img.width;
@@ -573,11 +605,17 @@ struct MarkerTracker::Impl {
     ++n_frames;
     uv.resize(uv.size() + 2 * points.size(), kNaN);
     flags.resize(flags.size() + points.size(), TrackFlag::BeforeSeed);
+    return frame;
+  }
 
-    // Markers tracked in the previous frame first, then lost ones, which
-    // may not take a blob a tracked marker holds.
-    std::vector<int> tracked, lost;
-    std::vector<std::pair<Eigen::Vector2d, int>> claimed;  // blob centres held this frame, by whom
+  using Claims = std::vector<std::pair<Eigen::Vector2d, int>>;  // blob centres held this frame, by whom
+
+  // Starts the points seeded in this frame (their blobs claimed), gives up
+  // those lost too long, and sorts the others into tracked in the previous
+  // frame and lost.
+  void sort_points(const ImageView8& img, int frame, std::vector<int>& tracked, std::vector<int>& lost,
+                   Claims& claimed) {
+    const int np = static_cast<int>(points.size());
     for (int p = 0; p < np; ++p) {
       PointState& s = state[p];
       if (!s.started) {
@@ -599,12 +637,14 @@ struct MarkerTracker::Impl {
       }
       (s.last_seen == frame - 1 ? tracked : lost).push_back(p);
     }
+  }
 
-    for (int p : tracked) state[p].prediction = predict(state[p], frame);
-    for (int p : lost) state[p].prediction = predict(state[p], frame);
-
-    // Tracked markers: each picks its blob; two picking one blob overlap.
-    std::vector<Proposal> props(np);
+  // Tracked markers: each picks its blob; two picking one blob overlap (a
+  // gap for both), as does a blob too large for a marker that also covers
+  // another marker's prediction (the two have merged in the image).
+  void place_tracked(const ImageView8& img, int frame, const std::vector<int>& tracked, std::vector<Proposal>& props,
+                     Claims& claimed) {
+    const int np = static_cast<int>(points.size());
     for (int p : tracked) {
       int neighbours = 0;
       const auto cands = candidates(p, img, state[p].prediction, opt.gate_px, neighbours);
@@ -623,8 +663,6 @@ struct MarkerTracker::Impl {
         overlap(a, b);
         overlap(b, a);
       }
-    // A blob too large for a marker that also covers another marker's
-    // prediction: the two have merged in the image.
     for (int p : tracked)
       if (const int q = merged_with(p, props[p], frame); q >= 0) overlap(p, q);
     for (int p : tracked) {
@@ -644,8 +682,13 @@ struct MarkerTracker::Impl {
     }
     for (int p : tracked)
       if (props[p].has_blob && !shared[p]) accept(frame, p, props[p].blob, TrackFlag::Tracked);
+  }
 
-    // Lost markers: re-acquire only an unclaimed, unambiguous candidate.
+  // Lost markers: re-acquire only an unclaimed, unambiguous candidate that
+  // no other lost marker claims too.
+  void place_lost(const ImageView8& img, int frame, const std::vector<int>& lost, std::vector<Proposal>& props,
+                  const Claims& claimed) {
+    const int np = static_cast<int>(points.size());
     for (int p : lost) {
       const PointState& s = state[p];
       const int since = frame - s.last_seen;
@@ -698,11 +741,26 @@ struct MarkerTracker::Impl {
       }
     }
   }
+
+  void add_frame(const ImageView8& img) {
+    const int frame = begin_frame(img);
+    // Markers tracked in the previous frame first, then lost ones, which
+    // may not take a blob a tracked marker holds.
+    std::vector<int> tracked, lost;
+    Claims claimed;
+    sort_points(img, frame, tracked, lost, claimed);
+    for (int p : tracked) state[p].prediction = predict(state[p], frame);
+    for (int p : lost) state[p].prediction = predict(state[p], frame);
+    std::vector<Proposal> props(points.size());
+    place_tracked(img, frame, tracked, props, claimed);
+    place_lost(img, frame, lost, props, claimed);
+  }
 };
 
 MarkerTracker::MarkerTracker(std::string camera, std::vector<std::string> points, std::vector<Seed> seeds,
                              TrackingOptions options)
     : impl_(std::make_unique<Impl>()) {
+  options.validate();
   impl_->camera = std::move(camera);
   impl_->points = std::move(points);
   impl_->opt = options;

@@ -55,7 +55,7 @@
 #include <string>
 #include <vector>
 
-#include "capture/session.h"
+#include "core/session.h"
 
 namespace dropfit {
 class Progress;
@@ -109,6 +109,11 @@ struct DetectionOptions {
   double min_area_px2 = 3.0;
   double max_area_px2 = 5000.0;
   double min_axis_ratio = 0.5;     // motion blur elongates; a half-hidden disc is about 0.5
+
+  // Throws dropfit::Error naming the field and value when one is out of
+  // range (NaN, a fraction outside 0-1, a negative contrast or area, a
+  // largest area below the smallest); detect_blobs and the tracker call it.
+  void validate() const;
 };
 
 // All plausible marker blobs in `window` of the image (the whole image when
@@ -150,6 +155,12 @@ struct TrackingOptions {
   double max_area_ratio = 1.5;      // two markers merging in the image
   double max_axis_ratio_drop = 0.15;
   double min_contrast_ratio = 0.4;
+
+  // Throws dropfit::Error naming the field and value when one is out of
+  // range (detection.validate(), a non-positive gate or seed radius, a
+  // largest gate below the gate, an ambiguity ratio below 1, ratios outside
+  // their side of 1); the MarkerTracker constructor calls it.
+  void validate() const;
 };
 
 // What happened to a point in a frame.
@@ -202,7 +213,8 @@ struct TrackingResult {
 class MarkerTracker {
  public:
   // Throws dropfit::InputError (naming the seed's source) for a seed that
-  // names a point not in `points`, a point seeded twice, or a negative frame.
+  // names a point not in `points`, a point seeded twice, or a negative frame;
+  // dropfit::Error for options out of range (TrackingOptions::validate).
   MarkerTracker(std::string camera, std::vector<std::string> points, std::vector<Seed> seeds,
                 TrackingOptions options = {});
   ~MarkerTracker();

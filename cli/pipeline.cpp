@@ -133,7 +133,7 @@ forceplate::Resultants raw_resultants(const Manifest& manifest, const ForceRecor
   return forceplate::from_resultant_columns(record.t_s, record.data, 50.0, g[2]);
 }
 
-TrialOutcome process_trial(const Manifest& manifest, const TrialData& trial,
+TrialOutcome process_trial(const Manifest& manifest, const TrialRecording& trial,
                            const std::vector<calibration::Camera>& cameras, double max_tilt_deg) {
   TrialOutcome outcome;
   outcome.trajectories = reconstruction::reconstruct(cameras, trial.tracks.uv_px, trial.tracks.n_points());

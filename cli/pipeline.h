@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "calibration/calibration.h"
-#include "capture/session.h"
+#include "core/session.h"
 #include "diagnosis/diagnosis.h"
 #include "reconstruction/reconstruction.h"
 #include "fitting/fit.h"
@@ -60,7 +60,7 @@ struct TrialOutcome {
 trial::TrialOptions trial_options(const Manifest& manifest, const std::string& trial_id);
 forceplate::ProcessOptions force_options(const Manifest& manifest, const ForceRecord& record);
 forceplate::Resultants raw_resultants(const Manifest& manifest, const ForceRecord& record);
-TrialOutcome process_trial(const Manifest& manifest, const TrialData& trial,
+TrialOutcome process_trial(const Manifest& manifest, const TrialRecording& trial,
                            const std::vector<calibration::Camera>& cameras, double max_tilt_deg = 0.0);
 
 // trial.json, series.csv, the trial's 3-D trajectories, and the OpenSim

@@ -272,13 +272,215 @@ std::string swap_camera(const Scene& s, const Model& model, int a, int b, double
   return "";
 }
 
+// A hypothesis of one forward-selection round.
+struct Cand {
+  std::string name;
+  Model model;
+  std::set<int> newly_dropped;
+};
+
+// A hypothesis that passed, with its cross-validation.
+struct Scored {
+  const Cand* cand;
+  CrossValidation cv;
+  detail::Verdict verdict;
+  double rms_mm;
+};
+
+// The round's hypotheses. Lens distortion with as few terms as the markers
+// support: k1 first (one more parameter per camera), then the tangential
+// pair; each camera must keep twice as many equations as parameters.
+// Outliers: the markers with the largest held-out errors, alone and in pairs
+// (a label slip swaps two markers, and both then stand out).
+std::vector<Cand> round_candidates(const Scene& scene, const Model& current, const CrossValidation& cv,
+                                   const CalibrationStageOptions& options, bool distortion_done,
+                                   bool tangential_done) {
+  const double min_outlier_m = options.calibration.min_outlier_m;
+  std::vector<Cand> cands;
+  int min_seen = scene.n_markers();
+  for (int c = 0; c < scene.n_cameras(); ++c) {
+    int n = 0;
+    for (int m = 0; m < scene.n_markers(); ++m)
+      if (!current.dropped.count(m) && scene.seen[static_cast<std::size_t>(c)][static_cast<std::size_t>(m)].allFinite())
+        ++n;
+    min_seen = std::min(min_seen, n);
+  }
+  if (!distortion_done) {
+    Model m = current;
+    m.dlt.fit_distortion = true;
+    m.dlt.radial_terms = 1;
+    m.dlt.tangential = false;
+    if (2 * (min_seen - 1) >= 2 * parameters_per_camera(m.dlt)) cands.push_back({"lens_distortion", m, {}});
+  } else if (!tangential_done) {
+    Model m = current;
+    m.dlt.tangential = true;
+    if (2 * (min_seen - 1) >= 2 * parameters_per_camera(m.dlt)) cands.push_back({"lens_distortion", m, {}});
+  }
+  const int room = options.max_outliers - static_cast<int>(current.dropped.size());
+  if (room <= 0) return cands;
+  std::vector<int> order;
+  for (int m = 0; m < scene.n_markers(); ++m)
+    if (std::isfinite(cv.error_m(m))) order.push_back(m);
+  std::sort(order.begin(), order.end(), [&](int a, int b) { return cv.error_m(a) > cv.error_m(b); });
+  const double med = cv.median_m();
+  std::vector<int> top;
+  for (int m : order)
+    if (static_cast<int>(top.size()) < 4 && cv.error_m(m) > std::max(min_outlier_m, 2.0 * med)) top.push_back(m);
+  for (std::size_t i = 0; i < top.size(); ++i) {
+    Model m = current;
+    m.dropped.insert(top[i]);
+    cands.push_back({"outlier_marker", m, {top[i]}});
+    if (room < 2) continue;
+    for (std::size_t j = i + 1; j < top.size(); ++j) {
+      Model p = current;
+      p.dropped.insert(top[i]);
+      p.dropped.insert(top[j]);
+      cands.push_back({"outlier_marker", p, {top[i], top[j]}});
+    }
+  }
+  return cands;
+}
+
+// Cross-validates each hypothesis against the current model `cv`: those
+// that pass (held-out test and information criterion), and the reasons for
+// the others.
+std::pair<std::vector<Scored>, std::vector<Rejected>> score_candidates(const Scene& scene,
+                                                                       const std::vector<Cand>& cands,
+                                                                       const CrossValidation& cv,
+                                                                       const CalibrationStageOptions& options) {
+  std::vector<Scored> passing;
+  std::vector<Rejected> round_rejected;
+  for (const Cand& cand : cands) {
+    CrossValidation next = cross_validate(scene, cand.model);
+    const std::string label = cand.name + (cand.newly_dropped.empty() ? " (" + model_words(cand.model.dlt) + ")"
+                                                                      : " " + marker_list(scene, cand.newly_dropped));
+    if (!next.ok) {
+      round_rejected.push_back({"calibration", label, "refit failed: " + next.failure});
+      continue;
+    }
+    std::vector<double> hb, ha;
+    for (int m = 0; m < scene.n_markers(); ++m)
+      if (std::isfinite(cv.error_m(m)) && std::isfinite(next.error_m(m))) {
+        hb.push_back(1000.0 * cv.error_m(m));
+        ha.push_back(1000.0 * next.error_m(m));
+      }
+    double n_large = next.n;
+    int k_large = next.k;
+    if (!cand.newly_dropped.empty()) {
+      // Mean-shift outlier model on the same data: each dropped marker
+      // keeps its images but gets two free coordinates per camera.
+      n_large = cv.n;
+      for (int m : cand.newly_dropped)
+        for (int c = 0; c < scene.n_cameras(); ++c)
+          if (scene.seen[static_cast<std::size_t>(c)][static_cast<std::size_t>(m)].allFinite()) k_large += 2;
+    }
+    const detail::Verdict v = detail::judge(detail::to_vector(hb), detail::to_vector(ha), 0.0, cv.rss_px2, cv.k,
+                                            next.rss_px2, k_large, std::max(cv.n, n_large), 0.0, options.criterion,
+                                            options.decision);
+    if (!v.keep()) {
+      round_rejected.push_back({"calibration", label, v.reason("cross-validated marker error (mm)", options.criterion)});
+      continue;
+    }
+    const double r = next.rms_mm();
+    passing.push_back({&cand, std::move(next), v, r});
+  }
+  return {std::move(passing), std::move(round_rejected)};
+}
+
+// Estimates and evidence of a kept lens-distortion hypothesis.
+void describe_distortion(const Scene& scene, const Scored& best, const CrossValidation& cv,
+                         const CalibrationStageOptions& options, Effect& e) {
+  const Cand& cand = *best.cand;
+  const CrossValidation& next = best.cv;
+  std::string ks;
+  for (int c = 0; c < scene.n_cameras(); ++c) {
+    const calibration::Camera& cam = next.full[static_cast<std::size_t>(c)];
+    if (!cam.has_distortion()) continue;
+    const double se = jackknife_se(next.k1_loo[static_cast<std::size_t>(c)]);
+    e.estimate.push_back({cam.name + "_k1", cam.distortion[0]});
+    e.estimate.push_back({cam.name + "_k1_se", se});
+    if (cand.model.dlt.tangential) {
+      e.estimate.push_back({cam.name + "_p1", cam.distortion[2]});
+      e.estimate.push_back({cam.name + "_p2", cam.distortion[3]});
+    }
+    ks += fmt::format("{}{} k1 = {:.3f} +- {:.3f}", ks.empty() ? "" : ", ", cam.name, cam.distortion[0], se);
+  }
+  e.evidence = fmt::format(
+      "leave-one-out 3-D error over all {} markers falls from {:.2f} to {:.2f} mm RMS with the {} "
+      "(t = {:.1f}, {} {:+.1f}); {}",
+      static_cast<int>(best.verdict.held_out.mean_before > 0 ? (next.error_m.array().isFinite()).count() : 0),
+      cv.rms_mm(), next.rms_mm(), model_words(cand.model.dlt), best.verdict.held_out.t,
+      criterion_name(options.criterion), best.verdict.ic.delta, ks);
+}
+
+// Estimates and evidence of a kept outlier hypothesis (one marker or a
+// pair, and whether the pair is a label swap); the dropped markers' ids go
+// to `dropped_markers`.
+void describe_outliers(const Scene& scene, const Model& current, const Scored& best, const CrossValidation& cv,
+                       double fit_after_px, const CalibrationStageOptions& options, Effect& e,
+                       std::vector<std::string>& dropped_markers) {
+  const Cand& cand = *best.cand;
+  const CrossValidation& next = best.cv;
+  const double min_outlier_m = options.calibration.min_outlier_m, ratio = options.calibration.outlier_ratio;
+  const double med = next.median_m();
+  std::string swap;
+  if (cand.newly_dropped.size() == 2) {
+    const int a = *cand.newly_dropped.begin(), b = *cand.newly_dropped.rbegin();
+    swap = swap_camera(scene, current, a, b, std::max(min_outlier_m, ratio * med));
+  }
+  std::string per;
+  for (int m : cand.newly_dropped) {
+    const std::string& id = scene.markers[static_cast<std::size_t>(m)].id;
+    e.estimate.push_back({id + "_loo_error_mm", 1000.0 * cv.error_m(m)});
+    per += fmt::format("{}{} {:.1f} mm", per.empty() ? "" : ", ", id, 1000.0 * cv.error_m(m));
+    dropped_markers.push_back(id);
+  }
+  e.estimate.push_back({"others_median_mm", 1000.0 * med});
+  e.estimate.push_back({"noise_px", fit_after_px});
+  e.evidence = fmt::format(
+      "{} stand{} out in leave-one-out on all markers ({}); with {} left out of every fit the others' "
+      "held-out error falls from {:.1f} to {:.2f} mm RMS (t = {:.1f}, {} {:+.1f}){}",
+      marker_list(scene, cand.newly_dropped), cand.newly_dropped.size() == 1 ? "s" : "", per,
+      cand.newly_dropped.size() == 1 ? "it" : "both", cv.rms_mm(cand.newly_dropped), next.rms_mm(),
+      best.verdict.held_out.t, criterion_name(options.criterion), best.verdict.ic.delta,
+      swap.empty() ? "" : fmt::format("; exchanging their images in {} fits as well: a label swap", swap));
+}
+
+// What remains after the chosen model: a marker that still stands out, or
+// radial structure in the reprojection residual.
+void remaining_calibration(const Scene& scene, const std::vector<calibration::CameraView>& views,
+                           const Model& current, const CrossValidation& cv, const CalibrationStageOptions& options,
+                           CalibrationDiagnosis& out) {
+  const double min_outlier_m = options.calibration.min_outlier_m, ratio = options.calibration.outlier_ratio;
+  const double med = cv.median_m();
+  for (int m = 0; m < scene.n_markers(); ++m)
+    if (std::isfinite(cv.error_m(m)) && cv.error_m(m) > std::max(min_outlier_m, ratio * med))
+      out.remaining.push_back({"calibration", "outlier_marker",
+                               fmt::format("marker {} still stands out ({:.1f} mm leave-one-out against a median "
+                                           "of {:.2f} mm) and no hypothesis explains it",
+                                           scene.markers[static_cast<std::size_t>(m)].id, 1000.0 * cv.error_m(m),
+                                           1000.0 * med)});
+  const std::vector<calibration::Marker> km = kept_markers(scene, current.dropped);
+  const std::vector<calibration::CameraView> kv = kept_views(views, scene, current.dropped);
+  const Reprojection rep = reprojection(out.after, km, kv);
+  const StructureReport radial = radial_structure(rep, options.decision);
+  const TermScore* cube = radial.find("r^3");
+  const double mean_px = rep.distance_px.empty() ? 0.0 : detail::to_vector(rep.distance_px).mean();
+  // A radial pattern is worth naming only when it is strong and its size
+  // clearly exceeds sub-pixel digitising noise.
+  if (cube && cube->share_alone >= 0.5 && mean_px > 1.0)
+    out.remaining.push_back(
+        {"calibration", "radial_residual",
+         fmt::format("reprojection residual still grows with the image radius (r = {:.2f}, mean {:.2f} px)", cube->r,
+                     mean_px)});
+}
+
 }  // namespace
 
 CalibrationDiagnosis diagnose_calibration(const std::vector<calibration::Marker>& markers,
                                           const std::vector<calibration::CameraView>& views,
                                           const CalibrationStageOptions& options) {
   CalibrationDiagnosis out;
-  const DecisionOptions& d = options.decision;
   const calibration::CalibrationOptions base = options.calibration;
   out.before = calibration::calibrate(markers, views, base);
   const Scene scene = scene_of(markers, views);
@@ -292,108 +494,14 @@ CalibrationDiagnosis diagnose_calibration(const std::vector<calibration::Marker>
     out.options_after = base;
     return out;
   }
-  const double min_outlier_m = base.min_outlier_m, ratio = base.outlier_ratio;
 
   // Forward selection: each round scores every candidate by cross-validation
   // and keeps the passing one with the lowest held-out RMS.
   bool distortion_done = current.dlt.fit_distortion, tangential_done = current.dlt.tangential && distortion_done;
   for (int round = 0; round < 4; ++round) {
-    struct Cand {
-      std::string name;
-      Model model;
-      std::set<int> newly_dropped;
-    };
-    std::vector<Cand> cands;
-    // Lens distortion with as few terms as the markers support: k1 first
-    // (one more parameter per camera), then the tangential pair. Each camera
-    // must keep twice as many equations as parameters.
-    int min_seen = scene.n_markers();
-    for (int c = 0; c < scene.n_cameras(); ++c) {
-      int n = 0;
-      for (int m = 0; m < scene.n_markers(); ++m)
-        if (!current.dropped.count(m) && scene.seen[static_cast<std::size_t>(c)][static_cast<std::size_t>(m)].allFinite())
-          ++n;
-      min_seen = std::min(min_seen, n);
-    }
-    if (!distortion_done) {
-      Model m = current;
-      m.dlt.fit_distortion = true;
-      m.dlt.radial_terms = 1;
-      m.dlt.tangential = false;
-      if (2 * (min_seen - 1) >= 2 * parameters_per_camera(m.dlt)) cands.push_back({"lens_distortion", m, {}});
-    } else if (!tangential_done) {
-      Model m = current;
-      m.dlt.tangential = true;
-      if (2 * (min_seen - 1) >= 2 * parameters_per_camera(m.dlt)) cands.push_back({"lens_distortion", m, {}});
-    }
-    // Outliers: the markers with the largest held-out errors, alone and in
-    // pairs (a label slip swaps two markers, and both then stand out).
-    const int room = options.max_outliers - static_cast<int>(current.dropped.size());
-    if (room > 0) {
-      std::vector<int> order;
-      for (int m = 0; m < scene.n_markers(); ++m)
-        if (std::isfinite(cv.error_m(m))) order.push_back(m);
-      std::sort(order.begin(), order.end(), [&](int a, int b) { return cv.error_m(a) > cv.error_m(b); });
-      const double med = cv.median_m();
-      std::vector<int> top;
-      for (int m : order)
-        if (static_cast<int>(top.size()) < 4 && cv.error_m(m) > std::max(min_outlier_m, 2.0 * med)) top.push_back(m);
-      for (std::size_t i = 0; i < top.size(); ++i) {
-        Model m = current;
-        m.dropped.insert(top[i]);
-        cands.push_back({"outlier_marker", m, {top[i]}});
-        if (room < 2) continue;
-        for (std::size_t j = i + 1; j < top.size(); ++j) {
-          Model p = current;
-          p.dropped.insert(top[i]);
-          p.dropped.insert(top[j]);
-          cands.push_back({"outlier_marker", p, {top[i], top[j]}});
-        }
-      }
-    }
+    const std::vector<Cand> cands = round_candidates(scene, current, cv, options, distortion_done, tangential_done);
     if (cands.empty()) break;
-
-    struct Scored {
-      const Cand* cand;
-      CrossValidation cv;
-      detail::Verdict verdict;
-      double rms_mm;
-    };
-    std::vector<Scored> passing;
-    std::vector<Rejected> round_rejected;
-    for (const Cand& cand : cands) {
-      CrossValidation next = cross_validate(scene, cand.model);
-      const std::string label = cand.name + (cand.newly_dropped.empty() ? " (" + model_words(cand.model.dlt) + ")"
-                                                                        : " " + marker_list(scene, cand.newly_dropped));
-      if (!next.ok) {
-        round_rejected.push_back({"calibration", label, "refit failed: " + next.failure});
-        continue;
-      }
-      std::vector<double> hb, ha;
-      for (int m = 0; m < scene.n_markers(); ++m)
-        if (std::isfinite(cv.error_m(m)) && std::isfinite(next.error_m(m))) {
-          hb.push_back(1000.0 * cv.error_m(m));
-          ha.push_back(1000.0 * next.error_m(m));
-        }
-      double n_large = next.n;
-      int k_large = next.k;
-      if (!cand.newly_dropped.empty()) {
-        // Mean-shift outlier model on the same data: each dropped marker
-        // keeps its images but gets two free coordinates per camera.
-        n_large = cv.n;
-        for (int m : cand.newly_dropped)
-          for (int c = 0; c < scene.n_cameras(); ++c)
-            if (scene.seen[static_cast<std::size_t>(c)][static_cast<std::size_t>(m)].allFinite()) k_large += 2;
-      }
-      const detail::Verdict v = detail::judge(detail::to_vector(hb), detail::to_vector(ha), 0.0, cv.rss_px2, cv.k,
-                                              next.rss_px2, k_large, std::max(cv.n, n_large), 0.0, options.criterion, d);
-      if (!v.keep()) {
-        round_rejected.push_back({"calibration", label, v.reason("cross-validated marker error (mm)", options.criterion)});
-        continue;
-      }
-      const double r = next.rms_mm();
-      passing.push_back({&cand, std::move(next), v, r});
-    }
+    auto [passing, round_rejected] = score_candidates(scene, cands, cv, options);
     if (passing.empty()) {
       out.rejected.insert(out.rejected.end(), round_rejected.begin(), round_rejected.end());
       break;
@@ -412,49 +520,11 @@ CalibrationDiagnosis diagnose_calibration(const std::vector<calibration::Marker>
                       {"fit_rms_px", fit_before}};
     e.error_after = {{"cv_rms_mm", next.rms_mm()}, {"cv_max_mm", next.max_mm()}, {"fit_rms_px", fit_after}};
     if (cand.name == "lens_distortion") {
-      std::string ks;
-      for (int c = 0; c < scene.n_cameras(); ++c) {
-        const calibration::Camera& cam = next.full[static_cast<std::size_t>(c)];
-        if (!cam.has_distortion()) continue;
-        const double se = jackknife_se(next.k1_loo[static_cast<std::size_t>(c)]);
-        e.estimate.push_back({cam.name + "_k1", cam.distortion[0]});
-        e.estimate.push_back({cam.name + "_k1_se", se});
-        if (cand.model.dlt.tangential) {
-          e.estimate.push_back({cam.name + "_p1", cam.distortion[2]});
-          e.estimate.push_back({cam.name + "_p2", cam.distortion[3]});
-        }
-        ks += fmt::format("{}{} k1 = {:.3f} +- {:.3f}", ks.empty() ? "" : ", ", cam.name, cam.distortion[0], se);
-      }
-      e.evidence = fmt::format(
-          "leave-one-out 3-D error over all {} markers falls from {:.2f} to {:.2f} mm RMS with the {} "
-          "(t = {:.1f}, {} {:+.1f}); {}",
-          static_cast<int>(best->verdict.held_out.mean_before > 0 ? (next.error_m.array().isFinite()).count() : 0), cv.rms_mm(), next.rms_mm(), model_words(cand.model.dlt), best->verdict.held_out.t,
-          criterion_name(options.criterion), best->verdict.ic.delta, ks);
+      describe_distortion(scene, *best, cv, options, e);
       if (cand.model.dlt.tangential) tangential_done = true;
       distortion_done = true;
     } else {
-      const double med = next.median_m();
-      std::string swap;
-      if (cand.newly_dropped.size() == 2) {
-        const int a = *cand.newly_dropped.begin(), b = *cand.newly_dropped.rbegin();
-        swap = swap_camera(scene, current, a, b, std::max(min_outlier_m, ratio * med));
-      }
-      std::string per;
-      for (int m : cand.newly_dropped) {
-        const std::string& id = scene.markers[static_cast<std::size_t>(m)].id;
-        e.estimate.push_back({id + "_loo_error_mm", 1000.0 * cv.error_m(m)});
-        per += fmt::format("{}{} {:.1f} mm", per.empty() ? "" : ", ", id, 1000.0 * cv.error_m(m));
-        out.dropped_markers.push_back(id);
-      }
-      e.estimate.push_back({"others_median_mm", 1000.0 * med});
-      e.estimate.push_back({"noise_px", fit_after});
-      e.evidence = fmt::format(
-          "{} stand{} out in leave-one-out on all markers ({}); with {} left out of every fit the others' "
-          "held-out error falls from {:.1f} to {:.2f} mm RMS (t = {:.1f}, {} {:+.1f}){}",
-          marker_list(scene, cand.newly_dropped), cand.newly_dropped.size() == 1 ? "s" : "", per,
-          cand.newly_dropped.size() == 1 ? "it" : "both", cv.rms_mm(cand.newly_dropped), next.rms_mm(),
-          best->verdict.held_out.t, criterion_name(options.criterion), best->verdict.ic.delta,
-          swap.empty() ? "" : fmt::format("; exchanging their images in {} fits as well: a label swap", swap));
+      describe_outliers(scene, current, *best, cv, fit_after, options, e, out.dropped_markers);
     }
     out.effects.push_back(std::move(e));
     current = cand.model;
@@ -480,31 +550,7 @@ CalibrationDiagnosis diagnose_calibration(const std::vector<calibration::Marker>
     e.error_before.insert(e.error_before.begin(), check_before.begin(), check_before.end());
     e.error_after.insert(e.error_after.begin(), check_after.begin(), check_after.end());
   }
-
-  // 4. What remains: a marker that still stands out, or radial structure.
-  const double med = cv.median_m();
-  for (int m = 0; m < scene.n_markers(); ++m)
-    if (std::isfinite(cv.error_m(m)) && cv.error_m(m) > std::max(min_outlier_m, ratio * med))
-      out.remaining.push_back({"calibration", "outlier_marker",
-                               fmt::format("marker {} still stands out ({:.1f} mm leave-one-out against a median "
-                                           "of {:.2f} mm) and no hypothesis explains it",
-                                           scene.markers[static_cast<std::size_t>(m)].id, 1000.0 * cv.error_m(m),
-                                           1000.0 * med)});
-  {
-    const std::vector<calibration::Marker> km = kept_markers(scene, current.dropped);
-    const std::vector<calibration::CameraView> kv = kept_views(views, scene, current.dropped);
-    const Reprojection rep = reprojection(out.after, km, kv);
-    const StructureReport radial = radial_structure(rep, d);
-    const TermScore* cube = radial.find("r^3");
-    const double mean_px = rep.distance_px.empty() ? 0.0 : detail::to_vector(rep.distance_px).mean();
-    // A radial pattern is worth naming only when it is strong and its size
-    // clearly exceeds sub-pixel digitising noise.
-    if (cube && cube->share_alone >= 0.5 && mean_px > 1.0)
-      out.remaining.push_back(
-          {"calibration", "radial_residual",
-           fmt::format("reprojection residual still grows with the image radius (r = {:.2f}, mean {:.2f} px)", cube->r,
-                       mean_px)});
-  }
+  remaining_calibration(scene, views, current, cv, options, out);
   return out;
 }
 

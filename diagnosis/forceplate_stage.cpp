@@ -5,6 +5,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <optional>
 
 #include "diagnosis/diagnosis.h"
 #include "diagnosis/internal.h"
@@ -256,27 +257,31 @@ ImpulseBalance impulse_balance(const PlateTrial& t, const PlateCorrection& c, do
   return out;
 }
 
-ForceplateDiagnosis diagnose_forceplate(const std::vector<PlateTrial>& trials, const ForceplateStageOptions& o) {
-  ForceplateDiagnosis out;
-  const DecisionOptions& d = o.decision;
-  const int nt = static_cast<int>(trials.size());
-  if (nt == 0) return out;
+namespace {
 
-  // ---- baseline_drift ----
-  std::vector<Row> rows;
-  std::vector<Eigen::VectorXd> segments;  // per trial, for the whiteness test
-  double noise_sq = 0.0;
-  int post_trials = 0;
+// The still samples of every trial as drift-fit rows (column filled later),
+// with each trial's residual segment for the whiteness test.
+struct StillRows {
   std::vector<Still> stills;
+  std::vector<Row> rows;
+  std::vector<Eigen::VectorXd> segments;
+  double noise_n = 0.0;  // RMS over trials of the plate noise
+  int post_trials = 0;   // trials with still samples after the contact
+};
+
+StillRows collect_still_rows(const std::vector<PlateTrial>& trials, const ForceplateStageOptions& o) {
+  StillRows sr;
+  const int nt = static_cast<int>(trials.size());
+  double noise_sq = 0.0;
   for (int k = 0; k < nt; ++k) {
     const PlateTrial& t = trials[static_cast<std::size_t>(k)];
-    stills.push_back(still_samples(t, o));
-    const Still& s = stills.back();
+    sr.stills.push_back(still_samples(t, o));
+    const Still& s = sr.stills.back();
     std::vector<double> post_t;
     for (std::size_t j = 0; j < s.index.size(); ++j)
       if (s.after_contact[j]) post_t.push_back(t.t_s(s.index[j]));
     const double split = post_t.empty() ? 0.0 : post_t[post_t.size() / 2];
-    if (!post_t.empty()) ++post_trials;
+    if (!post_t.empty()) ++sr.post_trials;
     Eigen::VectorXd seg(static_cast<Eigen::Index>(s.index.size()));
     for (std::size_t j = 0; j < s.index.size(); ++j) {
       const Eigen::Index i = s.index[j];
@@ -285,144 +290,177 @@ ForceplateDiagnosis diagnose_forceplate(const std::vector<PlateTrial>& trials, c
       r.residual = t.fz_n(i) - s.expected_n[j];
       r.column = 0.0;
       r.late = s.after_contact[j] && t.t_s(i) >= split;
-      rows.push_back(r);
+      sr.rows.push_back(r);
       seg(static_cast<Eigen::Index>(j)) = r.residual;
     }
-    segments.push_back(seg);
+    sr.segments.push_back(seg);
     noise_sq += noise_of(t) * noise_of(t);
   }
-  const double noise = std::sqrt(noise_sq / nt);
+  sr.noise_n = std::sqrt(noise_sq / nt);
+  return sr;
+}
 
-  if (post_trials < 2) {
-    out.notes.push_back(fmt::format("forceplate: only {} trial(s) hold still after the contact; baseline drift "
-                                    "cannot be tested",
-                                    post_trials));
-  } else {
-    // Which drift shape: regression of the still residual on a line over the
-    // record and on a ramp from the contact, per-trial intercepts projected out.
-    const auto n_rows = static_cast<Eigen::Index>(rows.size());
-    Eigen::MatrixXd nuisance = Eigen::MatrixXd::Zero(n_rows, nt);
-    Eigen::VectorXd line(n_rows), ramp(n_rows), res(n_rows);
-    {
-      Eigen::Index r = 0;
-      for (int k = 0; k < nt; ++k) {
-        const Still& s = stills[static_cast<std::size_t>(k)];
-        for (std::size_t j = 0; j < s.index.size(); ++j, ++r) {
-          nuisance(r, k) = 1.0;
-          line(r) = drift_column(trials[static_cast<std::size_t>(k)], s.index[j], false);
-          ramp(r) = drift_column(trials[static_cast<std::size_t>(k)], s.index[j], true);
-          res(r) = rows[static_cast<std::size_t>(r)].residual;
-        }
-      }
-    }
-    StructureOptions so;
-    so.alpha = d.alpha;
-    const StructureReport st = analyse_residual(segments, {{"t", "time over the record", line},
-                                                           {"t - t_contact", "time since the contact", ramp}},
-                                                so, nuisance);
-    const TermScore* best = st.terms.empty() ? nullptr : &st.terms.front();
-    const bool from_contact = best && best->name == "t - t_contact";
-    for (Eigen::Index r = 0; r < n_rows; ++r) rows[static_cast<std::size_t>(r)].column = from_contact ? ramp(r) : line(r);
-
-    // Held out: fit on everything but each trial's later post-contact half,
-    // predict that half; paired over trials.
-    const DriftFit flat_early = fit_drift(rows, nt, false, true);
-    const DriftFit slope_early = fit_drift(rows, nt, true, true);
-    Eigen::VectorXd hb = Eigen::VectorXd::Zero(nt), ha = Eigen::VectorXd::Zero(nt), cnt = Eigen::VectorXd::Zero(nt);
-    for (const auto& r : rows) {
-      if (!r.late) continue;
-      const double b = r.residual - flat_early.intercept(r.trial);
-      const double a = r.residual - slope_early.intercept(r.trial) - slope_early.slope * r.column;
-      hb(r.trial) += b * b;
-      ha(r.trial) += a * a;
-      cnt(r.trial) += 1.0;
-    }
-    std::vector<double> vb, va;
-    for (int k = 0; k < nt; ++k)
-      if (cnt(k) > 0) {
-        vb.push_back(std::sqrt(hb(k) / cnt(k)));
-        va.push_back(std::sqrt(ha(k) / cnt(k)));
-      }
-    const Eigen::VectorXd held_b = detail::to_vector(vb), held_a = detail::to_vector(va);
-    const DriftFit flat = fit_drift(rows, nt, false, false);
-    const DriftFit slope = fit_drift(rows, nt, true, false);
-    // rho1 of the drift model's residual, for the effective N.
-    std::vector<Eigen::VectorXd> after_segments;
-    {
-      Eigen::Index r = 0;
-      for (int k = 0; k < nt; ++k) {
-        Eigen::VectorXd seg(segments[static_cast<std::size_t>(k)].size());
-        for (Eigen::Index j = 0; j < seg.size(); ++j, ++r) {
-          const Row& row = rows[static_cast<std::size_t>(r)];
-          seg(j) = row.residual - slope.intercept(k) - slope.slope * row.column;
-        }
-        after_segments.push_back(seg);
-      }
-    }
-    const double rho1 = autocorrelation(after_segments, 1)(0);
-    const detail::Verdict v = detail::judge(held_b, held_a, 0.5 * noise, flat.rss, nt, slope.rss, nt + 1,
-                                            static_cast<double>(rows.size()), rho1, Criterion::AICc, d);
-    if (v.keep()) {
-      Effect e;
-      e.stage = "forceplate";
-      e.name = "baseline_drift";
-      e.evidence = fmt::format(
-          "zeroed Fz where it must hold still correlates with {} (r = {:.2f} over {} samples in {} trials): "
-          "a drift of {:.1f} N/s",
-          best ? best->description : "time", best ? best->r : 0.0, rows.size(), nt, slope.slope);
-      e.error_before = {{"still_rms_n", std::sqrt(flat.rss / static_cast<double>(rows.size()))},
-                        {"heldout_still_rms_n", detail::rms(held_b)}};
-      e.error_after = {{"still_rms_n", std::sqrt(slope.rss / static_cast<double>(rows.size()))},
-                       {"heldout_still_rms_n", detail::rms(held_a)}};
-      // The slope's SE: the residual SD over the drift column's spread about
-      // each trial's own mean (the intercepts absorb the rest), with the
-      // AR(1) effective sample size.
-      double sxx = 0.0;
-      {
-        std::vector<double> sum(static_cast<std::size_t>(nt), 0.0), cnt(static_cast<std::size_t>(nt), 0.0);
-        for (const auto& row : rows) {
-          sum[static_cast<std::size_t>(row.trial)] += row.column;
-          cnt[static_cast<std::size_t>(row.trial)] += 1.0;
-        }
-        for (const auto& row : rows) {
-          const double m = sum[static_cast<std::size_t>(row.trial)] / std::max(cnt[static_cast<std::size_t>(row.trial)], 1.0);
-          sxx += (row.column - m) * (row.column - m);
-        }
-      }
-      const double sigma = std::sqrt(slope.rss / std::max(static_cast<double>(rows.size()) - nt - 1.0, 1.0));
-      const double inflate = std::sqrt((1.0 + std::max(rho1, 0.0)) / (1.0 - std::min(std::max(rho1, 0.0), 0.99)));
-      const double slope_se = sxx > 0.0 ? sigma / std::sqrt(sxx) * inflate : kNaN;
-      e.estimate = {{"drift_n_s", slope.slope}, {"drift_n_s_se", slope_se}};
-      e.evidence += fmt::format(" +- {:.2f} N/s", slope_se);
-      out.effects.push_back(std::move(e));
-      out.correction.drift = true;
-      out.correction.drift_from_contact = from_contact;
-      out.correction.drift_n_s = slope.slope;
-      // A whole-record line: the zeroing already removed its mean over the
-      // quiet part, so the offset is what the intercepts agree on.
-      out.correction.drift_offset_n = from_contact ? 0.0 : slope.intercept.mean();
-    } else {
-      out.rejected.push_back({"forceplate", "baseline_drift", v.reason("still-part RMS (N)", Criterion::AICc)});
-    }
-    // What remains in the still parts.
-    Whiteness w = ljung_box(out.correction.drift ? after_segments : segments, 20, 0, d.alpha);
-    const double rms_left =
-        std::sqrt((out.correction.drift ? slope.rss : flat.rss) / static_cast<double>(rows.size()));
-    if (!w.white && rms_left > 2.0 * noise) {
-      const PeriodicPeak pk = periodogram_peak(out.correction.drift ? after_segments : segments, 1e-3, d.alpha, 2.0);
-      out.remaining.push_back(
-          {"forceplate", pk.significant ? "periodic_oscillation" : "structured_baseline",
-           pk.significant
-               ? fmt::format("the still parts of Fz oscillate at {:.1f} Hz ({:.1f} N amplitude, {:.0f} % of their "
-                             "variance)",
-                             pk.frequency_hz, pk.amplitude, 100.0 * pk.share)
-               : fmt::format("the still parts of Fz are not flat ({:.1f} N RMS against {:.1f} N noise, rho1 = {:.2f}; "
-                             "strongest frequency {:.1f} Hz)",
-                             rms_left, noise, w.rho1(), pk.frequency_hz)});
+// Which drift shape: regression of the still residual on a line over the
+// record and on a ramp from the contact, per-trial intercepts projected out.
+// Fills the rows' column with the winner; returns its term (nullptr when
+// none) and whether it is the ramp.
+std::pair<std::optional<TermScore>, bool> choose_drift_column(const std::vector<PlateTrial>& trials, StillRows& sr,
+                                                              double alpha) {
+  const int nt = static_cast<int>(trials.size());
+  const auto n_rows = static_cast<Eigen::Index>(sr.rows.size());
+  Eigen::MatrixXd nuisance = Eigen::MatrixXd::Zero(n_rows, nt);
+  Eigen::VectorXd line(n_rows), ramp(n_rows);
+  Eigen::Index r = 0;
+  for (int k = 0; k < nt; ++k) {
+    const Still& s = sr.stills[static_cast<std::size_t>(k)];
+    for (std::size_t j = 0; j < s.index.size(); ++j, ++r) {
+      nuisance(r, k) = 1.0;
+      line(r) = drift_column(trials[static_cast<std::size_t>(k)], s.index[j], false);
+      ramp(r) = drift_column(trials[static_cast<std::size_t>(k)], s.index[j], true);
     }
   }
+  StructureOptions so;
+  so.alpha = alpha;
+  const StructureReport st = analyse_residual(sr.segments, {{"t", "time over the record", line},
+                                                            {"t - t_contact", "time since the contact", ramp}},
+                                              so, nuisance);
+  std::optional<TermScore> best;
+  if (!st.terms.empty()) best = st.terms.front();
+  const bool from_contact = best && best->name == "t - t_contact";
+  for (Eigen::Index i = 0; i < n_rows; ++i) sr.rows[static_cast<std::size_t>(i)].column = from_contact ? ramp(i) : line(i);
+  return {best, from_contact};
+}
 
-  // ---- force_scale ----
+// Held out: fit on everything but each trial's later post-contact half,
+// predict that half; per trial the RMS without (first) and with (second) the
+// drift.
+std::pair<Eigen::VectorXd, Eigen::VectorXd> held_out_drift(const std::vector<Row>& rows, int nt) {
+  const DriftFit flat_early = fit_drift(rows, nt, false, true);
+  const DriftFit slope_early = fit_drift(rows, nt, true, true);
+  Eigen::VectorXd hb = Eigen::VectorXd::Zero(nt), ha = Eigen::VectorXd::Zero(nt), cnt = Eigen::VectorXd::Zero(nt);
+  for (const auto& r : rows) {
+    if (!r.late) continue;
+    const double b = r.residual - flat_early.intercept(r.trial);
+    const double a = r.residual - slope_early.intercept(r.trial) - slope_early.slope * r.column;
+    hb(r.trial) += b * b;
+    ha(r.trial) += a * a;
+    cnt(r.trial) += 1.0;
+  }
+  std::vector<double> vb, va;
+  for (int k = 0; k < nt; ++k)
+    if (cnt(k) > 0) {
+      vb.push_back(std::sqrt(hb(k) / cnt(k)));
+      va.push_back(std::sqrt(ha(k) / cnt(k)));
+    }
+  return {detail::to_vector(vb), detail::to_vector(va)};
+}
+
+// Each trial's still residual after the drift fit `slope`.
+std::vector<Eigen::VectorXd> residual_after_drift(const StillRows& sr, const DriftFit& slope) {
+  std::vector<Eigen::VectorXd> after_segments;
+  Eigen::Index r = 0;
+  for (std::size_t k = 0; k < sr.segments.size(); ++k) {
+    Eigen::VectorXd seg(sr.segments[k].size());
+    for (Eigen::Index j = 0; j < seg.size(); ++j, ++r) {
+      const Row& row = sr.rows[static_cast<std::size_t>(r)];
+      seg(j) = row.residual - slope.intercept(static_cast<Eigen::Index>(k)) - slope.slope * row.column;
+    }
+    after_segments.push_back(seg);
+  }
+  return after_segments;
+}
+
+// The drift slope's SE: the residual SD over the drift column's spread about
+// each trial's own mean (the intercepts absorb the rest), with the AR(1)
+// effective sample size.
+double drift_slope_se(const std::vector<Row>& rows, int nt, const DriftFit& slope, double rho1) {
+  double sxx = 0.0;
+  std::vector<double> sum(static_cast<std::size_t>(nt), 0.0), cnt(static_cast<std::size_t>(nt), 0.0);
+  for (const auto& row : rows) {
+    sum[static_cast<std::size_t>(row.trial)] += row.column;
+    cnt[static_cast<std::size_t>(row.trial)] += 1.0;
+  }
+  for (const auto& row : rows) {
+    const double m = sum[static_cast<std::size_t>(row.trial)] / std::max(cnt[static_cast<std::size_t>(row.trial)], 1.0);
+    sxx += (row.column - m) * (row.column - m);
+  }
+  const double sigma = std::sqrt(slope.rss / std::max(static_cast<double>(rows.size()) - nt - 1.0, 1.0));
+  const double inflate = std::sqrt((1.0 + std::max(rho1, 0.0)) / (1.0 - std::min(std::max(rho1, 0.0), 0.99)));
+  return sxx > 0.0 ? sigma / std::sqrt(sxx) * inflate : kNaN;
+}
+
+// baseline_drift (diagnosis.h): effect or rejection into out, then what
+// remains in the still parts.
+void diagnose_baseline_drift(const std::vector<PlateTrial>& trials, const ForceplateStageOptions& o,
+                             ForceplateDiagnosis& out) {
+  const DecisionOptions& d = o.decision;
+  const int nt = static_cast<int>(trials.size());
+  StillRows sr = collect_still_rows(trials, o);
+  const double noise = sr.noise_n;
+  if (sr.post_trials < 2) {
+    out.notes.push_back(fmt::format("forceplate: only {} trial(s) hold still after the contact; baseline drift "
+                                    "cannot be tested",
+                                    sr.post_trials));
+    return;
+  }
+  const auto [best, from_contact] = choose_drift_column(trials, sr, d.alpha);
+  const std::vector<Row>& rows = sr.rows;
+  const auto [held_b, held_a] = held_out_drift(rows, nt);
+  const DriftFit flat = fit_drift(rows, nt, false, false);
+  const DriftFit slope = fit_drift(rows, nt, true, false);
+  // rho1 of the drift model's residual, for the effective N.
+  const std::vector<Eigen::VectorXd> after_segments = residual_after_drift(sr, slope);
+  const double rho1 = autocorrelation(after_segments, 1)(0);
+  const detail::Verdict v = detail::judge(held_b, held_a, 0.5 * noise, flat.rss, nt, slope.rss, nt + 1,
+                                          static_cast<double>(rows.size()), rho1, Criterion::AICc, d);
+  if (v.keep()) {
+    Effect e;
+    e.stage = "forceplate";
+    e.name = "baseline_drift";
+    e.evidence = fmt::format(
+        "zeroed Fz where it must hold still correlates with {} (r = {:.2f} over {} samples in {} trials): "
+        "a drift of {:.1f} N/s",
+        best ? best->description : "time", best ? best->r : 0.0, rows.size(), nt, slope.slope);
+    e.error_before = {{"still_rms_n", std::sqrt(flat.rss / static_cast<double>(rows.size()))},
+                      {"heldout_still_rms_n", detail::rms(held_b)}};
+    e.error_after = {{"still_rms_n", std::sqrt(slope.rss / static_cast<double>(rows.size()))},
+                     {"heldout_still_rms_n", detail::rms(held_a)}};
+    const double slope_se = drift_slope_se(rows, nt, slope, rho1);
+    e.estimate = {{"drift_n_s", slope.slope}, {"drift_n_s_se", slope_se}};
+    e.evidence += fmt::format(" +- {:.2f} N/s", slope_se);
+    out.effects.push_back(std::move(e));
+    out.correction.drift = true;
+    out.correction.drift_from_contact = from_contact;
+    out.correction.drift_n_s = slope.slope;
+    // A whole-record line: the zeroing already removed its mean over the
+    // quiet part, so the offset is what the intercepts agree on.
+    out.correction.drift_offset_n = from_contact ? 0.0 : slope.intercept.mean();
+  } else {
+    out.rejected.push_back({"forceplate", "baseline_drift", v.reason("still-part RMS (N)", Criterion::AICc)});
+  }
+  // What remains in the still parts.
+  const std::vector<Eigen::VectorXd>& left = out.correction.drift ? after_segments : sr.segments;
+  Whiteness w = ljung_box(left, 20, 0, d.alpha);
+  const double rms_left = std::sqrt((out.correction.drift ? slope.rss : flat.rss) / static_cast<double>(rows.size()));
+  if (!w.white && rms_left > 2.0 * noise) {
+    const PeriodicPeak pk = periodogram_peak(left, 1e-3, d.alpha, 2.0);
+    out.remaining.push_back(
+        {"forceplate", pk.significant ? "periodic_oscillation" : "structured_baseline",
+         pk.significant
+             ? fmt::format("the still parts of Fz oscillate at {:.1f} Hz ({:.1f} N amplitude, {:.0f} % of their "
+                           "variance)",
+                           pk.frequency_hz, pk.amplitude, 100.0 * pk.share)
+             : fmt::format("the still parts of Fz are not flat ({:.1f} N RMS against {:.1f} N noise, rho1 = {:.2f}; "
+                           "strongest frequency {:.1f} Hz)",
+                           rms_left, noise, w.rho1(), pk.frequency_hz)});
+  }
+}
+
+// force_scale (diagnosis.h): the plate's impulse against the video's
+// momentum over trials, with the drift correction found so far.
+void diagnose_force_scale(const std::vector<PlateTrial>& trials, const ForceplateStageOptions& o,
+                          ForceplateDiagnosis& out) {
+  const DecisionOptions& d = o.decision;
   std::vector<double> ratios, spreads, mat_momenta;
   std::vector<std::string> ids;
   int by_flight = 0;
@@ -447,7 +485,7 @@ ForceplateDiagnosis diagnose_forceplate(const std::vector<PlateTrial>& trials, c
     out.notes.push_back(fmt::format("forceplate: impulse-momentum ratio available for {} trial(s) (no free flight "
                                     "after separation in the video, no still plate); force scale cannot be judged",
                                     nr));
-    return out;
+    return;
   }
   const Eigen::VectorXd rho = detail::to_vector(ratios);
   const double gain = rho.mean();
@@ -494,6 +532,15 @@ ForceplateDiagnosis diagnose_forceplate(const std::vector<PlateTrial>& trials, c
                              fmt::format("impulse/momentum scatters by {:.1f} % between trials: no constant gain "
                                          "explains it",
                                          100.0 * scatter)});
+}
+
+}  // namespace
+
+ForceplateDiagnosis diagnose_forceplate(const std::vector<PlateTrial>& trials, const ForceplateStageOptions& o) {
+  ForceplateDiagnosis out;
+  if (trials.empty()) return out;
+  diagnose_baseline_drift(trials, o, out);
+  diagnose_force_scale(trials, o, out);
   return out;
 }
 

@@ -5,6 +5,7 @@
 
 #include <Eigen/Dense>
 #include <algorithm>
+#include <boost/math/distributions/chi_squared.hpp>
 #include <bit>
 #include <cassert>
 #include <cmath>
@@ -13,6 +14,7 @@
 #include <unsupported/Eigen/FFT>
 
 #include "core/error.h"
+#include "core/validate.h"
 
 namespace dropfit::diagnosis {
 namespace {
@@ -198,7 +200,29 @@ LinearFit linear_fit(const Eigen::MatrixXd& columns, const Eigen::VectorXd& y, d
   return fit;
 }
 
+void SparseOptions::validate() const {
+  constexpr std::string_view w = "structure options";
+  check::non_negative(w, "sparse.threshold", threshold);
+  check::non_negative(w, "sparse.ridge", ridge);
+  check::at_least(w, "sparse.max_iterations", max_iterations, 1);
+  check::in_range(w, "sparse.min_unique_share", min_unique_share, 0.0, 1.0);
+  check::at_least(w, "sparse.max_exhaustive_columns", max_exhaustive_columns, 0);
+}
+
+void StructureOptions::validate() const {
+  constexpr std::string_view w = "structure options";
+  check::at_least(w, "max_lag", max_lag, 0);
+  check::at_least(w, "fitted_parameters", fitted_parameters, 0);
+  if (!(alpha > 0.0 && alpha < 1.0))
+    throw Error(fmt::format("structure options: alpha = {} (a significance level: above 0 and below 1)", alpha));
+  sparse.validate();
+  check::in_range(w, "min_share", min_share, 0.0, 1.0);
+  check::non_negative(w, "dt_s (0: no periodogram)", dt_s);
+  check::non_negative(w, "min_frequency_hz", min_frequency_hz);
+}
+
 SparseFit stlsq(const Eigen::MatrixXd& columns, const Eigen::VectorXd& y, const SparseOptions& options) {
+  options.validate();
   if (columns.rows() != y.size())
     throw Error(fmt::format("stlsq: {} rows of columns for {} residuals", columns.rows(), y.size()));
   require_finite(columns, "a candidate column");
@@ -318,36 +342,7 @@ double chi_square_sf(double q, double dof) {
   if (!(dof > 0.0)) return kNaN;
   if (!(q > 0.0)) return 1.0;
   if (std::isinf(q)) return 0.0;
-  const double a = 0.5 * dof, x = 0.5 * q;
-  const double log_prefactor = -x + a * std::log(x) - std::lgamma(a);
-  constexpr double eps = 1e-15;
-  if (x < a + 1.0) {
-    // Series for the lower function P(a, x).
-    double ap = a, del = 1.0 / a, sum = del;
-    for (int n = 0; n < 1000; ++n) {
-      ap += 1.0;
-      del *= x / ap;
-      sum += del;
-      if (std::abs(del) < std::abs(sum) * eps) break;
-    }
-    return std::clamp(1.0 - sum * std::exp(log_prefactor), 0.0, 1.0);
-  }
-  // Continued fraction for Q(a, x) by the modified Lentz method.
-  constexpr double tiny = 1e-300;
-  double b = x + 1.0 - a, c = 1.0 / tiny, d = 1.0 / b, h = d;
-  for (int i = 1; i < 1000; ++i) {
-    const double an = -i * (i - a);
-    b += 2.0;
-    d = an * d + b;
-    if (std::abs(d) < tiny) d = tiny;
-    c = b + an / c;
-    if (std::abs(c) < tiny) c = tiny;
-    d = 1.0 / d;
-    const double del = d * c;
-    h *= del;
-    if (std::abs(del - 1.0) < eps) break;
-  }
-  return std::clamp(std::exp(log_prefactor) * h, 0.0, 1.0);
+  return boost::math::cdf(boost::math::complement(boost::math::chi_squared_distribution<double>(dof), q));
 }
 
 Whiteness ljung_box(const std::vector<Eigen::VectorXd>& segments, int max_lag, int fitted_parameters, double alpha) {
@@ -566,6 +561,7 @@ std::string StructureReport::summary() const {
 
 StructureReport analyse_residual(const std::vector<Eigen::VectorXd>& segments, const std::vector<Candidate>& candidates,
                                  const StructureOptions& options, const Eigen::MatrixXd& nuisance) {
+  options.validate();
   const Eigen::VectorXd raw = concatenate(segments);
   const Eigen::Index n = raw.size();
   require_finite(raw, "the residual");

@@ -109,6 +109,10 @@ struct SparseOptions {
   double min_unique_share = 0.02;
   // Exhaustive subset check up to this many (non-constant) columns.
   int max_exhaustive_columns = 12;
+
+  // Throws dropfit::Error naming the field and value when one is out of
+  // range (NaN, negative, shares outside 0-1, no iteration); stlsq calls it.
+  void validate() const;
 };
 
 struct SparseFit {
@@ -144,9 +148,8 @@ Whiteness ljung_box(const std::vector<Eigen::VectorXd>& segments, int max_lag, i
                     double alpha = 0.01);
 Whiteness ljung_box(const Eigen::VectorXd& residual, int max_lag, int fitted_parameters = 0, double alpha = 0.01);
 
-// Upper tail of the chi-square distribution, P(chi2_dof > q), by the
-// regularised incomplete gamma function (series below a + 1, Lentz's
-// continued fraction above; Press et al., Numerical Recipes, 3rd ed., 6.2).
+// Upper tail of the chi-square distribution, P(chi2_dof > q) (Boost.Math's
+// chi_squared_distribution); NaN for dof <= 0, 1 for q <= 0 (or NaN).
 double chi_square_sf(double q, double dof);
 
 struct PeriodicPeak {
@@ -228,6 +231,11 @@ struct StructureOptions {
   double min_share = 0.1;
   double dt_s = 0.0;               // sample spacing; 0 skips the periodogram
   double min_frequency_hz = 0.0;   // see periodogram_peak
+
+  // Throws dropfit::Error naming the field and value when one is out of
+  // range (negative lags or spacing, alpha outside (0, 1), NaN), and
+  // sparse.validate(); analyse_residual calls it.
+  void validate() const;
 };
 
 struct TermScore {

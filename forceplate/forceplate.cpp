@@ -42,6 +42,7 @@
 #include <vector>
 
 #include "core/error.h"
+#include "core/validate.h"
 
 namespace dropfit::forceplate {
 namespace {
@@ -312,24 +313,28 @@ Resultants from_resultant_columns(const Eigen::VectorXd& t_s, const Eigen::Matri
   return r;
 }
 
-ForceTrial process(const Resultants& raw, const ProcessOptions& options) {
+namespace {
+
+// Whether resultant column c (Fx Fy Fz Mx My Mz) is absent from the record.
+bool column_absent(const Resultants& raw, int c) {
+  static const char* const names[6] = {"Fx", "Fy", "Fz", "Mx", "My", "Mz"};
+  return std::find(raw.absent.begin(), raw.absent.end(), names[c]) != raw.absent.end();
+}
+
+// The record's shape, values, clock and saturation (process); returns the
+// sample spacing.
+double check_record(const Resultants& raw, const ProcessOptions& options) {
   const Eigen::Index n_rows = raw.f_n.rows();
   if (n_rows < 8 || raw.f_n.cols() != 3 || raw.m_n_m.rows() != n_rows || raw.m_n_m.cols() != 3 ||
       raw.t_s.size() != n_rows) {
     throw Error(fmt::format("force record: malformed resultants ({} samples)", n_rows));
   }
   const int n = static_cast<int>(n_rows);
-  auto is_absent = [&](int c) {
-    static const char* const names[6] = {"Fx", "Fy", "Fz", "Mx", "My", "Mz"};
-    return std::find(raw.absent.begin(), raw.absent.end(), names[c]) != raw.absent.end();
-  };
-  if (is_absent(2)) throw Error("force record: no Fz: the ground reaction force is not in the record");
-  {
-    static const std::vector<std::string> names{"Fx", "Fy", "Fz", "Mx", "My", "Mz"};
-    for (int c = 0; c < 6; ++c) {
-      if (is_absent(c)) continue;
-      check_no_nan(c < 3 ? raw.f_n.col(c) : raw.m_n_m.col(c - 3), 1, {names[c]});
-    }
+  if (column_absent(raw, 2)) throw Error("force record: no Fz: the ground reaction force is not in the record");
+  static const std::vector<std::string> names{"Fx", "Fy", "Fz", "Mx", "My", "Mz"};
+  for (int c = 0; c < 6; ++c) {
+    if (column_absent(raw, c)) continue;
+    check_no_nan(c < 3 ? raw.f_n.col(c) : raw.m_n_m.col(c - 3), 1, {names[c]});
   }
   for (int i = 1; i < n; ++i) {
     if (!(raw.t_s[i] > raw.t_s[i - 1])) {
@@ -342,7 +347,138 @@ ForceTrial process(const Resultants& raw, const ProcessOptions& options) {
                             options.sample_rate_hz));
   }
   if (raw.channels_n.size() > 0) check_saturation(raw, options);
+  return dt;
+}
 
+// Zero offset and noise from the quiet part [0, quiet_end), and the zeroed
+// plate on the force clock (0 at sample `declared`), into out.
+void zero_plate(const Resultants& raw, int quiet_end, int declared, const ProcessOptions& options, ForceTrial& out) {
+  for (int c = 0; c < 6; ++c) {
+    if (column_absent(raw, c)) {
+      out.offset[c] = kNaN;  // not measured: stays NaN
+      continue;
+    }
+    const Eigen::VectorXd col = c < 3 ? raw.f_n.col(c).head(quiet_end) : raw.m_n_m.col(c - 3).head(quiet_end);
+    const RobustLevel level = robust_level(col);
+    out.offset[c] = level.mean;
+    if (c == 2) out.noise_n = std::max(level.sd, options.min_noise_n);
+  }
+  out.quiet_samples = quiet_end;
+  out.plate.t_s = raw.t_s.array() - raw.t_s[declared];
+  out.plate.f_n = raw.f_n.rowwise() - out.offset.head<3>().transpose();
+  out.plate.m_n_m = raw.m_n_m.rowwise() - out.offset.tail<3>().transpose();
+}
+
+// The first sample at or above the trigger threshold (and its interpolated
+// time) into out; throws when there is none or it is far from the declared
+// trigger sample.
+int trigger_crossing(const Eigen::VectorXd& fz, const Eigen::VectorXd& t, double dt, int declared,
+                     const ProcessOptions& options, ForceTrial& out) {
+  const int n = static_cast<int>(fz.size());
+  int crossing = -1;
+  for (int i = 0; i < n; ++i) {
+    if (fz[i] >= options.trigger_threshold_n) {
+      crossing = i;
+      break;
+    }
+  }
+  if (crossing < 0) {
+    throw Error(fmt::format("force record: no trigger (zeroed Fz never reaches {} N; largest {:.1f} N)",
+                            options.trigger_threshold_n, fz.maxCoeff()));
+  }
+  out.trigger_index = crossing;
+  out.trigger_time_s = t[crossing];
+  if (crossing > 0) {
+    const double f0 = fz[crossing - 1], f1 = fz[crossing];
+    out.trigger_time_s = t[crossing - 1] + (options.trigger_threshold_n - f0) / (f1 - f0) * (t[crossing] - t[crossing - 1]);
+  }
+  if (std::abs(t[crossing]) > options.max_trigger_mismatch_s + 0.5 * dt) {
+    throw Error(fmt::format(
+        "force record: Fz first reaches {} N at sample {} ({:+.1f} ms from the declared trigger sample {}): the "
+        "pre-trigger share does not match the record",
+        options.trigger_threshold_n, crossing, 1e3 * t[crossing], declared));
+  }
+  return crossing;
+}
+
+// The peak after the crossing (parabolic refinement) and the end of contact
+// (Fz back within `band`, interpolated) into out.
+void peak_and_end(const Eigen::VectorXd& fz, const Eigen::VectorXd& t, int crossing, double band, double dt,
+                  ForceTrial& out) {
+  const int n = static_cast<int>(fz.size());
+  int ip = crossing;
+  for (int i = crossing; i < n; ++i) {
+    if (fz[i] > fz[ip]) ip = i;
+  }
+  out.peak_fz_n = fz[ip];
+  out.peak_time_s = t[ip];
+  if (ip > 0 && ip + 1 < n) {
+    const double ym = fz[ip - 1], y0 = fz[ip], yp = fz[ip + 1];
+    const double curv = ym - 2.0 * y0 + yp;
+    if (curv < 0.0) {
+      const double d = 0.5 * (ym - yp) / curv;
+      out.peak_fz_n = y0 - 0.25 * (ym - yp) * d;
+      out.peak_time_s = t[ip] + d * dt;
+    }
+  }
+  out.time_to_peak_s = out.peak_time_s - out.contact_time_s;
+
+  out.end_found = false;
+  out.end_index = n - 1;
+  out.end_time_s = t[n - 1];
+  for (int i = ip + 1; i < n; ++i) {
+    if (fz[i] <= band) {
+      out.end_found = true;
+      out.end_index = i;
+      const double f0 = fz[i - 1], f1 = fz[i];
+      out.end_time_s = t[i - 1] + (f0 - band) / (f0 - f1) * (t[i] - t[i - 1]);
+      break;
+    }
+  }
+}
+
+// Centre of pressure of the zeroed resultants and what the record passes on.
+void finish_plate(const Resultants& raw, const ProcessOptions& options, ForceTrial& out) {
+  const int n = static_cast<int>(raw.f_n.rows());
+  if (std::isfinite(raw.az0_m)) {
+    out.plate.cop_m = centre_of_pressure(out.plate.f_n, out.plate.m_n_m, raw.az0_m, options.cop_min_fz_n);
+  } else {
+    out.plate.cop_m = raw.cop_m.rows() == n ? raw.cop_m : Eigen::MatrixXd::Constant(n, 2, kNaN);
+    for (int i = 0; i < n; ++i) {
+      if (!(std::abs(out.plate.f_n(i, 2)) >= options.cop_min_fz_n)) out.plate.cop_m.row(i).setConstant(kNaN);
+    }
+  }
+  out.plate.az0_m = raw.az0_m;
+  out.plate.channels_n = raw.channels_n;
+  out.plate.channel_names = raw.channel_names;
+  out.plate.absent = raw.absent;
+  out.plate.cop_unavailable = raw.cop_unavailable;
+  out.absent = raw.absent;
+  out.cop_unavailable = raw.cop_unavailable;
+}
+
+}  // namespace
+
+void ProcessOptions::validate() const {
+  constexpr std::string_view w = "forceplate options";
+  check::positive(w, "trigger_threshold_n", trigger_threshold_n);
+  check::in_range(w, "pretrigger_fraction", pretrigger_fraction, 0.0, 1.0, true);
+  check::at_least(w, "pretrigger_samples", pretrigger_samples, -1);
+  check::non_negative(w, "sample_rate_hz (0: not checked)", sample_rate_hz);
+  check::positive(w, "max_trigger_mismatch_s", max_trigger_mismatch_s);
+  check::non_negative(w, "quiet_guard_s", quiet_guard_s);
+  check::at_least(w, "min_quiet_samples", min_quiet_samples, 1);
+  check::positive(w, "onset_band_sd", onset_band_sd);
+  check::non_negative(w, "min_noise_n", min_noise_n);
+  check::non_negative(w, "cop_min_fz_n", cop_min_fz_n);
+  check::non_negative(w, "saturation_n (0: off)", saturation_n);
+  check::at_least(w, "saturation_flat_samples (0 or 1: off)", saturation_flat_samples, 0);
+}
+
+ForceTrial process(const Resultants& raw, const ProcessOptions& options) {
+  options.validate();
+  const double dt = check_record(raw, options);
+  const int n = static_cast<int>(raw.f_n.rows());
   const int declared = options.pretrigger_samples >= 0
                            ? options.pretrigger_samples
                            : static_cast<int>(std::lround(options.pretrigger_fraction * n));
@@ -360,55 +496,14 @@ ForceTrial process(const Resultants& raw, const ProcessOptions& options) {
 
   ForceTrial out;
   out.declared_trigger_index = declared;
-  const double t_zero = raw.t_s[declared];
-  const double band_sd = options.onset_band_sd;
-
   for (int pass = 0; pass < 2; ++pass) {
-    // Zero offset and noise from the quiet part [0, quiet_end).
-    for (int c = 0; c < 6; ++c) {
-      if (is_absent(c)) {
-        out.offset[c] = kNaN;  // not measured: stays NaN
-        continue;
-      }
-      const Eigen::VectorXd col = c < 3 ? raw.f_n.col(c).head(quiet_end) : raw.m_n_m.col(c - 3).head(quiet_end);
-      const RobustLevel level = robust_level(col);
-      out.offset[c] = level.mean;
-      if (c == 2) out.noise_n = std::max(level.sd, options.min_noise_n);
-    }
-    out.quiet_samples = quiet_end;
-    out.plate.t_s = raw.t_s.array() - t_zero;
-    out.plate.f_n = raw.f_n.rowwise() - out.offset.head<3>().transpose();
-    out.plate.m_n_m = raw.m_n_m.rowwise() - out.offset.tail<3>().transpose();
+    zero_plate(raw, quiet_end, declared, options, out);
     const Eigen::VectorXd fz = out.plate.f_n.col(2);
     const Eigen::VectorXd& t = out.plate.t_s;
-
-    // Trigger crossing.
-    int crossing = -1;
-    for (int i = 0; i < n; ++i) {
-      if (fz[i] >= options.trigger_threshold_n) {
-        crossing = i;
-        break;
-      }
-    }
-    if (crossing < 0) {
-      throw Error(fmt::format("force record: no trigger (zeroed Fz never reaches {} N; largest {:.1f} N)",
-                              options.trigger_threshold_n, fz.maxCoeff()));
-    }
-    out.trigger_index = crossing;
-    out.trigger_time_s = t[crossing];
-    if (crossing > 0) {
-      const double f0 = fz[crossing - 1], f1 = fz[crossing];
-      out.trigger_time_s = t[crossing - 1] + (options.trigger_threshold_n - f0) / (f1 - f0) * (t[crossing] - t[crossing - 1]);
-    }
-    if (std::abs(t[crossing]) > options.max_trigger_mismatch_s + 0.5 * dt) {
-      throw Error(fmt::format(
-          "force record: Fz first reaches {} N at sample {} ({:+.1f} ms from the declared trigger sample {}): the "
-          "pre-trigger share does not match the record",
-          options.trigger_threshold_n, crossing, 1e3 * t[crossing], declared));
-    }
+    const int crossing = trigger_crossing(fz, t, dt, declared, options, out);
 
     // Contact onset.
-    const double band = band_sd * out.noise_n;
+    const double band = options.onset_band_sd * out.noise_n;
     const double peak = fz.tail(n - crossing).maxCoeff();
     const double upper = std::max({2.0 * options.trigger_threshold_n, 2.0 * band, 0.1 * peak});
     const Onset onset = find_onset(t, fz, crossing, band, upper);
@@ -426,57 +521,10 @@ ForceTrial process(const Resultants& raw, const ProcessOptions& options) {
       quiet_end = safe_end;
       continue;
     }
-
-    // Peak (parabolic refinement).
-    int ip = crossing;
-    for (int i = crossing; i < n; ++i) {
-      if (fz[i] > fz[ip]) ip = i;
-    }
-    out.peak_fz_n = fz[ip];
-    out.peak_time_s = t[ip];
-    if (ip > 0 && ip + 1 < n) {
-      const double ym = fz[ip - 1], y0 = fz[ip], yp = fz[ip + 1];
-      const double curv = ym - 2.0 * y0 + yp;
-      if (curv < 0.0) {
-        const double d = 0.5 * (ym - yp) / curv;
-        out.peak_fz_n = y0 - 0.25 * (ym - yp) * d;
-        out.peak_time_s = t[ip] + d * dt;
-      }
-    }
-    out.time_to_peak_s = out.peak_time_s - out.contact_time_s;
-
-    // End of contact.
-    out.end_found = false;
-    out.end_index = n - 1;
-    out.end_time_s = t[n - 1];
-    for (int i = ip + 1; i < n; ++i) {
-      if (fz[i] <= band) {
-        out.end_found = true;
-        out.end_index = i;
-        const double f0 = fz[i - 1], f1 = fz[i];
-        out.end_time_s = t[i - 1] + (f0 - band) / (f0 - f1) * (t[i] - t[i - 1]);
-        break;
-      }
-    }
+    peak_and_end(fz, t, crossing, band, dt, out);
     break;
   }
-
-  // Centre of pressure of the zeroed resultants.
-  if (std::isfinite(raw.az0_m)) {
-    out.plate.cop_m = centre_of_pressure(out.plate.f_n, out.plate.m_n_m, raw.az0_m, options.cop_min_fz_n);
-  } else {
-    out.plate.cop_m = raw.cop_m.rows() == n ? raw.cop_m : Eigen::MatrixXd::Constant(n, 2, kNaN);
-    for (int i = 0; i < n; ++i) {
-      if (!(std::abs(out.plate.f_n(i, 2)) >= options.cop_min_fz_n)) out.plate.cop_m.row(i).setConstant(kNaN);
-    }
-  }
-  out.plate.az0_m = raw.az0_m;
-  out.plate.channels_n = raw.channels_n;
-  out.plate.channel_names = raw.channel_names;
-  out.plate.absent = raw.absent;
-  out.plate.cop_unavailable = raw.cop_unavailable;
-  out.absent = raw.absent;
-  out.cop_unavailable = raw.cop_unavailable;
+  finish_plate(raw, options, out);
   return out;
 }
 

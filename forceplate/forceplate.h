@@ -101,6 +101,10 @@ struct ProcessOptions {
   // Independently of saturation_n: a channel that holds its extreme value for
   // this many samples or more after arriving at it steeply is clipped.
   int saturation_flat_samples = 4;
+
+  // Throws dropfit::Error naming the field and value when one is out of
+  // range (NaN, a negative rate or time, a zero count); process() calls it.
+  void validate() const;
 };
 
 struct ForceTrial {

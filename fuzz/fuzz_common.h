@@ -14,7 +14,7 @@
 #include <fstream>
 #include <string>
 
-#include "capture/session.h"
+#include "core/session.h"
 #include "core/error.h"
 
 namespace dropfit::fuzz {

@@ -33,7 +33,7 @@ struct Trajectories {
   Eigen::Vector3d point(int frame, int p) const { return lab_m.row(frame).segment<3>(3 * p).transpose(); }
 };
 
-// uv_px in the DLTdv layout of capture/session.h (MarkerTracks2D::uv_px):
+// uv_px in the DLTdv layout of core/session.h (MarkerTracks2D::uv_px):
 // n_frames x (2 * n_points * cameras.size()), u of point p in camera c in
 // column 2 (p n_cameras + c), v in the next. Throws dropfit::Error when the
 // column count does not match or there are no cameras.

@@ -165,7 +165,7 @@ Session small_session() {
     for (int i = 0; i < 8; ++i) image.observations.push_back({s.frame[i].id, {100.0 + i, 200.0 - i}});
     s.images.push_back(image);
   }
-  TrialData t;
+  TrialRecording t;
   t.spec = m.trials[0];
   t.tracks = tracks_of(m.video, 3);
   t.force.layout = ForceLayout::EightChannel;

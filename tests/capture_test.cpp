@@ -159,7 +159,7 @@ Session test_session() {
   // trial1: eight-channel; trial2: BioWare with the manifest's pretrigger share.
   const int n2 = 37;
   for (int t = 0; t < 2; ++t) {
-    TrialData trial;
+    TrialRecording trial;
     trial.spec = s.manifest.trials[t];
     trial.tracks = test_tracks(s.manifest, 9 + t, 0.5 * t);
     trial.force = t == 0 ? eight_channel_record(40, 4, 2000.0)
@@ -266,8 +266,8 @@ TEST(CaptureIo, SessionRoundTrip) {
   }
   ASSERT_EQ(out.trials.size(), 2u);
   for (int t = 0; t < 2; ++t) {
-    const TrialData& ta = out.trials[t];
-    const TrialData& tb = in.trials[t];
+    const TrialRecording& ta = out.trials[t];
+    const TrialRecording& tb = in.trials[t];
     EXPECT_EQ(ta.spec.id, tb.spec.id);
     EXPECT_EQ(ta.tracks.points, tb.tracks.points);
     EXPECT_EQ(ta.tracks.cameras, tb.tracks.cameras);

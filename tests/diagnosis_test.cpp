@@ -229,7 +229,7 @@ TEST(Diagnosis, StiffnessThatDependsOnTheTrialNumberIsLeftUnexplained) {
     o.use_default_params = false;
     o.params = synth::default_mat_params(fitting::ModelKind::Model4, o.layers);
     o.params.k1_n_m *= k1_factor[i];
-    TrialData one = synth::make_session(o).session.trials.front();
+    TrialRecording one = synth::make_session(o).session.trials.front();
     one.spec = s.session.trials[i].spec;
     s.session.trials[i] = std::move(one);
   }

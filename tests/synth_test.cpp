@@ -255,7 +255,7 @@ TEST(SynthCapture, WriteThenReadGivesTheInMemorySession) {
   }
   ASSERT_EQ(s.session.trials.size(), r.trials.size());
   for (std::size_t i = 0; i < r.trials.size(); ++i) {
-    const TrialData &x = s.session.trials[i], &y = r.trials[i];
+    const TrialRecording &x = s.session.trials[i], &y = r.trials[i];
     EXPECT_EQ(x.spec.id, y.spec.id);
     EXPECT_EQ(x.spec.dir, y.spec.dir);
     // Bit for bit, NaN where NaN.

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "core/error.h"
+#include "core/validate.h"
 
 namespace dropfit::trial {
 namespace {
@@ -171,9 +172,20 @@ std::string force_spike(const Eigen::VectorXd& t, const Eigen::VectorXd& fz, Eig
       worst, 1e3 * t[worst], fz[worst], fz[worst - 1], fz[worst + 1], 100.0 * max_fraction, peak);
 }
 
-TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string& force_error,
-                         const reconstruction::Trajectories& markers, const TrialOptions& o) {
-  // Options a user must fix.
+// The video clock: frame numbers against seconds, 0 at the trigger frame.
+struct VideoClock {
+  double fps = 1000.0, dt_s = 1e-3;
+  int trigger_frame = 0;
+  double time(double frame) const { return (frame - trigger_frame) * dt_s; }
+  double frame(double t_s) const { return t_s * fps + trigger_frame; }
+};
+
+std::string point_name(const TrialOptions& o, int p) {
+  return p < static_cast<int>(o.point_names.size()) ? o.point_names[p] : fmt::format("point {}", p + 1);
+}
+
+// Options and trajectories a user must fix: thrown, not a rejected trial.
+void check_inputs(const reconstruction::Trajectories& markers, const TrialOptions& o) {
   if (!(o.frame_rate_hz > 0.0)) throw Error(fmt::format("trial {}: frame rate must be positive", o.id));
   if (!(o.impactor_mass_kg > 0.0)) throw Error(fmt::format("trial {}: impactor mass must be positive", o.id));
   if (o.base_markers.empty()) throw Error(fmt::format("trial {}: no impactor base markers named", o.id));
@@ -188,40 +200,363 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
   };
   for (int p : o.base_markers) check_index(p, "base");
   for (int p : o.surface_markers) check_index(p, "surface");
-  auto name = [&](int p) {
-    return p < static_cast<int>(o.point_names.size()) ? o.point_names[p] : fmt::format("point {}", p + 1);
-  };
+}
 
+// Mean height of `points` per frame (minus `below_m`); NaN in a frame where
+// one is missing, and throughout when `points` is empty.
+Eigen::VectorXd mean_height(const reconstruction::Trajectories& markers, const std::vector<int>& points,
+                            double below_m) {
+  const int nf = static_cast<int>(markers.lab_m.rows());
+  Eigen::VectorXd out(nf);
+  for (int i = 0; i < nf; ++i) {
+    double sum = 0.0;
+    bool all = !points.empty();
+    for (int p : points) {
+      const double z = markers.lab_m(i, 3 * p + 2);
+      all = all && std::isfinite(z);
+      sum += z;
+    }
+    out[i] = all ? sum / static_cast<double>(points.size()) - below_m : kNaN;
+  }
+  return out;
+}
+
+// The frame where the face first appears below the mat top (after a frame
+// above it, and staying below in most of the next three present frames);
+// with a nominal frame (the force's contact), the candidate nearest it. -1
+// when none.
+int find_crossing(const Eigen::VectorXd& h, double top, double nominal) {
+  const int nf = static_cast<int>(h.size());
+  int crossing = -1;
+  int last_above = -1;
+  for (int i = 0; i < nf; ++i) {
+    if (!std::isfinite(h[i])) continue;
+    if (h[i] >= top) {
+      last_above = i;
+      continue;
+    }
+    if (last_above < 0) continue;
+    int seen = 0, below = 0;
+    for (int k = i + 1; k < nf && seen < 3; ++k) {
+      if (!std::isfinite(h[k])) continue;
+      ++seen;
+      below += h[k] < top;
+    }
+    if (seen > 0 && 2 * below < seen) continue;  // a stray frame
+    if (crossing < 0 || (std::isfinite(nominal) && std::abs(i - nominal) < std::abs(crossing - nominal))) {
+      crossing = i;
+    }
+    if (!std::isfinite(nominal)) break;
+    last_above = -1;  // the next candidate needs a new approach from above
+  }
+  return crossing;
+}
+
+// Free-fall fit before the crossing and the video contact instant, into res.
+FreeFallFit free_fall_before(const Eigen::VectorXd& h, int crossing, const VideoClock& clock, const TrialOptions& o,
+                             TrialResult& res, std::vector<std::string>& reasons) {
+  const double top = o.mat_top_z_m;
+  FreeFallFit ff;
+  if (crossing < 0) {
+    reasons.push_back(fmt::format("video: the impactor's contact face is never seen reaching the mat top (z = {:.3f} m)",
+                                  top));
+    return ff;
+  }
+  const double t_cross = clock.time(crossing);
+  std::vector<double> ts, zs;
+  for (int i = crossing - 1; i >= 0 && clock.time(i) >= t_cross - o.freefall_window_s; --i) {
+    if (std::isfinite(h[i]) && h[i] >= top + o.freefall_clearance_m) {
+      ts.push_back(clock.time(i));
+      zs.push_back(h[i]);
+    }
+  }
+  ff = fit_free_fall(Eigen::Map<Eigen::VectorXd>(ts.data(), static_cast<Eigen::Index>(ts.size())),
+                     Eigen::Map<Eigen::VectorXd>(zs.data(), static_cast<Eigen::Index>(zs.size())), o.gravity_m_s2, top,
+                     t_cross);
+  res.freefall_frames = ff.n_frames;
+  if (static_cast<int>(ts.size()) < o.min_freefall_frames) {
+    std::vector<std::string> names;
+    for (int p : o.base_markers) names.push_back(point_name(o, p));
+    reasons.push_back(fmt::format("video: only {} free-fall frames of the base markers ({}) in the {:.0f} ms before "
+                                  "contact (need {})",
+                                  ts.size(), join(names, ", "), 1e3 * o.freefall_window_s, o.min_freefall_frames));
+  } else if (!ff.ok) {
+    reasons.push_back("video: the free-fall fit before contact does not reach the mat top");
+  }
+  if (ff.ok) {
+    res.impact_velocity_m_s = ff.contact_speed_m_s;
+    res.impact_velocity_ci_m_s = ff.contact_speed_ci_m_s;
+    res.video_contact_time_s = ff.contact_time_s;
+    res.freefall_rms_m = ff.rms_m;
+  }
+  return ff;
+}
+
+// The contact's start and end on the video clock (NaN when unknown).
+std::pair<double, double> contact_on_video(const forceplate::ForceTrial* force, const FreeFallFit& ff, int crossing,
+                                           const Eigen::VectorXd& h, double top, double offset,
+                                           const VideoClock& clock) {
+  const int nf = static_cast<int>(h.size());
+  double start_v = kNaN, end_v = kNaN;
+  if (ff.ok) {
+    start_v = ff.contact_time_s;
+  } else if (force) {
+    start_v = force->contact_time_s + offset;
+  } else if (crossing >= 0) {
+    start_v = clock.time(crossing - 0.5);
+  }
+  if (force && force->end_found) {
+    end_v = force->end_time_s + offset;
+  } else if (std::isfinite(start_v)) {
+    end_v = clock.time(nf - 1);
+    for (int i = std::max(0, static_cast<int>(std::ceil(clock.frame(start_v)))) + 1; i < nf; ++i) {
+      if (std::isfinite(h[i]) && h[i] >= top) {
+        end_v = clock.time(i);
+        break;
+      }
+    }
+  }
+  return {start_v, end_v};
+}
+
+// Base-marker coverage from coverage_lead_s before contact to frame `last`,
+// as a reason; empty when every base marker is there often enough.
+std::string coverage_reason(const reconstruction::Trajectories& markers, const TrialOptions& o,
+                            const VideoClock& clock, double start_v, int last) {
+  const int nf = static_cast<int>(markers.lab_m.rows());
+  const int c0 = static_cast<int>(std::ceil(clock.frame(start_v - o.coverage_lead_s)));
+  const int total = std::max(1, last - c0 + 1);
+  std::vector<std::string> missing;
+  for (int p : o.base_markers) {
+    int present = 0, gap = 0, longest = 0;
+    for (int i = c0; i <= last; ++i) {
+      const bool ok = i >= 0 && i < nf && std::isfinite(markers.lab_m(i, 3 * p + 2));
+      present += ok;
+      gap = ok ? 0 : gap + 1;
+      longest = std::max(longest, gap);
+    }
+    const double share = static_cast<double>(present) / total;
+    if (share < o.min_marker_coverage || longest * clock.dt_s > o.max_marker_gap_s + 1e-9) {
+      missing.push_back(fmt::format("{} ({:.0f} % of frames, longest gap {:.0f} ms)", point_name(o, p), 100.0 * share,
+                                    1e3 * longest * clock.dt_s));
+    }
+  }
+  if (missing.empty()) return {};
+  return fmt::format("markers missing around contact (from {:.0f} ms before contact to its end): {}",
+                     1e3 * o.coverage_lead_s, join(missing, "; "));
+}
+
+// Maximum deformation (the lowest face height in frames [first, last],
+// refined by a parabola over deformation_fit_half_window_s) into res.
+void max_deformation(const Eigen::VectorXd& h, int first, int last, const TrialOptions& o, const VideoClock& clock,
+                     double offset, TrialResult& res) {
+  const int nf = static_cast<int>(h.size());
+  int imin = -1;
+  for (int i = std::max(0, first); i <= std::min(last, nf - 1); ++i) {
+    if (std::isfinite(h[i]) && (imin < 0 || h[i] < h[imin])) imin = i;
+  }
+  if (imin < 0) return;
+  double hmin = h[imin], umin = 0.0;
+  const int hw = std::max(1, static_cast<int>(std::lround(o.deformation_fit_half_window_s * clock.fps)));
+  Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d atb = Eigen::Vector3d::Zero();
+  int count = 0;
+  for (int i = std::max(0, imin - hw); i <= std::min(nf - 1, imin + hw); ++i) {
+    if (!std::isfinite(h[i])) continue;
+    const double u = i - imin;
+    const Eigen::Vector3d row(1.0, u, u * u);
+    ata += row * row.transpose();
+    atb += row * h[i];
+    ++count;
+  }
+  if (count >= 5) {
+    const Eigen::Vector3d c = ata.ldlt().solve(atb);
+    if (c(2) > 0.0) {
+      const double u = -c(1) / (2.0 * c(2));
+      if (std::abs(u) <= hw) {
+        umin = u;
+        hmin = c(0) + c(1) * u + c(2) * u * u;
+      }
+    }
+  }
+  res.max_deformation_m = o.mat_top_z_m - hmin;
+  res.max_deformation_time_s = clock.time(imin + umin) - offset;
+}
+
+// The largest tilt of the base over frames [first, last], each frame's up
+// vector averaged over tilt_smoothing_frames; NaN when never seen.
+double worst_tilt_deg(const reconstruction::Trajectories& markers, const TrialOptions& o, int first, int last) {
+  const int nf = static_cast<int>(markers.lab_m.rows());
+  std::vector<Eigen::Vector3d> up(nf, Eigen::Vector3d::Constant(kNaN));
+  std::vector<Eigen::Vector3d> pts(o.base_markers.size());
+  const int i0 = std::max(0, first), i1 = std::min(last, nf - 1);
+  for (int i = i0; i <= i1; ++i) {
+    for (std::size_t k = 0; k < o.base_markers.size(); ++k) pts[k] = markers.point(i, o.base_markers[k]);
+    up[i] = base_up_vector(pts);
+  }
+  const int half = std::max(0, o.tilt_smoothing_frames / 2);
+  const int need = half + 1;
+  double worst = kNaN;
+  for (int i = i0; i <= i1; ++i) {
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    int k = 0;
+    for (int j = std::max(i0, i - half); j <= std::min(i1, i + half); ++j) {
+      if (up[j].allFinite()) {
+        sum += up[j];
+        ++k;
+      }
+    }
+    if (k < std::min(need, i1 - i0 + 1)) continue;
+    const double a = angle_from_vertical_deg(sum);
+    if (!(a <= worst)) worst = a;
+  }
+  return worst;
+}
+
+// The force and video series over the contact (from series_lead_s before it).
+Series contact_series(const forceplate::ForceTrial& force, const Eigen::VectorXd& h, const Eigen::VectorXd& surf,
+                      const TrialOptions& o, const VideoClock& clock, double offset) {
+  const Eigen::VectorXd& t = force.plate.t_s;
+  const Eigen::VectorXd fz = force.plate.f_n.col(2);
+  const double t_first = clock.time(0), top = o.mat_top_z_m;
+  const double a = force.contact_time_s - o.series_lead_s, b = force.end_time_s;
+  std::vector<Eigen::Index> rows;
+  for (Eigen::Index k = 0; k < t.size(); ++k) {
+    if (t[k] >= a && t[k] <= b) rows.push_back(k);
+  }
+  const auto m = static_cast<Eigen::Index>(rows.size());
+  Series s;
+  s.t_s.resize(m);
+  s.fz_n.resize(m);
+  s.impactor_z_m.resize(m);
+  s.deformation_m.resize(m);
+  s.surface_z_m.resize(m);
+  for (Eigen::Index r = 0; r < m; ++r) {
+    const Eigen::Index k = rows[r];
+    s.t_s[r] = t[k];
+    s.fz_n[r] = fz[k];
+    s.impactor_z_m[r] = interpolate_uniform(h, t_first, clock.dt_s, t[k] + offset);
+    s.deformation_m[r] = top - s.impactor_z_m[r];
+    s.surface_z_m[r] = interpolate_uniform(surf, t_first, clock.dt_s, t[k] + offset);
+  }
+  return s;
+}
+
+// Second synchronisation estimate: face heights against free fall plus the
+// plate force's double integral over the impactor mass; the clock offset
+// (video_offset_s searched +-5 ms around the contact estimate) that matches
+// them best, or NaN with fewer than 10 frames to compare.
+double trajectory_offset_s(const forceplate::ForceTrial& force, const Eigen::VectorXd& h, const FreeFallFit& ff,
+                           double video_offset_s, double start_v, double end_v, const TrialOptions& o,
+                           const VideoClock& clock) {
+  const Eigen::VectorXd& t = force.plate.t_s;
+  const Eigen::VectorXd fz = force.plate.f_n.col(2);
+  const Eigen::Index n = t.size();
+  const int nf = static_cast<int>(h.size());
+  const Eigen::Index k0 = std::max<Eigen::Index>(0, force.contact_index - 5);
+  Eigen::VectorXd disp = Eigen::VectorXd::Zero(n);
+  double vel = 0.0;
+  for (Eigen::Index k = k0 + 1; k < n; ++k) {
+    const double step = t[k] - t[k - 1];
+    const double v_new = vel + 0.5 * (fz[k - 1] + fz[k]) / o.impactor_mass_kg * step;
+    disp[k] = disp[k - 1] + 0.5 * (vel + v_new) * step;
+    vel = v_new;
+  }
+  const double dt_f = (t[n - 1] - t[0]) / static_cast<double>(n - 1);
+  std::vector<double> tv, dz;
+  const double search = 0.005;
+  for (int i = std::max(0, static_cast<int>(std::ceil(clock.frame(start_v)))); i < nf && clock.time(i) <= end_v; ++i) {
+    const double tf = clock.time(i) - video_offset_s;
+    if (!std::isfinite(h[i]) || tf - search < t[0] || tf + search > t[n - 1]) continue;
+    tv.push_back(clock.time(i));
+    dz.push_back(h[i] - ff.height_at(clock.time(i), o.gravity_m_s2));
+  }
+  if (tv.size() < 10) return kNaN;
+  auto cost = [&](double delta) {
+    double sum = 0.0;
+    for (std::size_t i = 0; i < tv.size(); ++i) {
+      const double r = dz[i] - interpolate_uniform(disp, t[0], dt_f, tv[i] - delta);
+      sum += r * r;
+    }
+    return sum;
+  };
+  const double step = 1e-5;
+  const int steps = static_cast<int>(std::lround(search / step));
+  double best = std::numeric_limits<double>::infinity();
+  int best_k = 0;
+  std::vector<double> c(2 * steps + 1);
+  for (int k = -steps; k <= steps; ++k) {
+    c[k + steps] = cost(video_offset_s + k * step);
+    if (c[k + steps] < best) best = c[k + steps], best_k = k;
+  }
+  double refine = 0.0;
+  if (best_k > -steps && best_k < steps) {
+    const double cm = c[best_k + steps - 1], c0 = c[best_k + steps], cp = c[best_k + steps + 1];
+    const double curv = cm - 2.0 * c0 + cp;
+    if (curv > 0.0) refine = 0.5 * (cm - cp) / curv;
+  }
+  return video_offset_s + (best_k + refine) * step;
+}
+
+// Force spikes, the impulse to maximum deformation against the video's
+// momentum, and the restitution (trial.h): ratios into res, reasons when
+// outside physical bounds. The impulse checks wait for a record without a
+// spike (they are meaningless with one).
+void impulse_checks(const forceplate::ForceTrial& force, const TrialOptions& o, TrialResult& res,
+                    std::vector<std::string>& reasons) {
+  const Eigen::VectorXd& t = force.plate.t_s;
+  const Eigen::VectorXd fz = force.plate.f_n.col(2);
+  const double g = o.gravity_m_s2;
+  const std::string spike = force_spike(t, fz, force.contact_index, force.end_index, o.max_spike_fraction);
+  if (!spike.empty()) reasons.push_back(spike);
+
+  // Impulse check to maximum deformation.
+  if (std::isfinite(res.max_deformation_time_s) && std::isfinite(res.impact_velocity_m_s) &&
+      res.max_deformation_time_s > force.contact_time_s) {
+    const double impulse = integrate(t, fz, force.contact_time_s, res.max_deformation_time_s) -
+                           o.impactor_mass_kg * g * (res.max_deformation_time_s - force.contact_time_s);
+    res.impulse_ratio = impulse / (o.impactor_mass_kg * res.impact_velocity_m_s);
+    res.velocity_from_impulse_m_s = impulse / o.impactor_mass_kg;
+  }
+  // Impulse over the whole contact: restitution.
+  if (force.end_found && std::isfinite(res.impact_velocity_m_s) && force.end_time_s > force.contact_time_s) {
+    const double impulse = integrate(t, fz, force.contact_time_s, force.end_time_s) -
+                           o.impactor_mass_kg * g * (force.end_time_s - force.contact_time_s);
+    res.restitution = impulse / (o.impactor_mass_kg * res.impact_velocity_m_s) - 1.0;
+  }
+  if (!spike.empty()) return;
+  const double tol = o.impulse_tolerance + std::max(0.0, o.mat_mass_kg) / o.impactor_mass_kg;
+  if (std::isfinite(res.impact_velocity_m_s) && std::isfinite(res.max_deformation_time_s) &&
+      !(std::abs(res.impulse_ratio - 1.0) <= tol)) {
+    reasons.push_back(fmt::format(
+        "impact velocity {:.3f} m/s from video against {:.3g} m/s from the force impulse to maximum deformation "
+        "(ratio {:.3g}, physically within {:.2f}-{:.2f}): check [video].frame_rate_hz, [impactor].mass_kg and the "
+        "force scale",
+        res.impact_velocity_m_s, res.velocity_from_impulse_m_s, res.impulse_ratio, 1.0 - tol, 1.0 + tol));
+  }
+  if (std::isfinite(res.impact_velocity_m_s) && force.end_found &&
+      !(res.restitution >= -tol && res.restitution <= 1.0 + tol)) {
+    reasons.push_back(fmt::format(
+        "impulse over the contact is {:.3g} times the impactor's momentum at contact; a rebound bounded by the "
+        "impact speed allows 1-2 (restitution 0-1, tolerance {:.2f})",
+        res.restitution + 1.0, tol));
+  }
+}
+
+TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string& force_error,
+                         const reconstruction::Trajectories& markers, const TrialOptions& o) {
+  o.validate();
+  check_inputs(markers, o);
   TrialResult res;
   res.id = o.id;
   std::vector<std::string> reasons;
   if (!force_error.empty()) reasons.push_back(force_error);
 
-  const double fps = o.frame_rate_hz, dt_v = 1.0 / fps, g = o.gravity_m_s2, top = o.mat_top_z_m;
-  const int nf = static_cast<int>(markers.lab_m.rows());
-  auto t_video = [&](double frame) { return (frame - o.trigger_frame) * dt_v; };
-  auto frame_at = [&](double t_v) { return t_v * fps + o.trigger_frame; };
-
+  const VideoClock clock{o.frame_rate_hz, 1.0 / o.frame_rate_hz, o.trigger_frame};
+  const double top = o.mat_top_z_m;
   // Face height and surface height per frame.
-  Eigen::VectorXd h(nf), surf(nf);
-  for (int i = 0; i < nf; ++i) {
-    double sum = 0.0;
-    bool all = true;
-    for (int p : o.base_markers) {
-      const double z = markers.lab_m(i, 3 * p + 2);
-      all = all && std::isfinite(z);
-      sum += z;
-    }
-    h[i] = all ? sum / static_cast<double>(o.base_markers.size()) - o.base_marker_height_m : kNaN;
-    sum = 0.0;
-    all = !o.surface_markers.empty();
-    for (int p : o.surface_markers) {
-      const double z = markers.lab_m(i, 3 * p + 2);
-      all = all && std::isfinite(z);
-      sum += z;
-    }
-    surf[i] = all ? sum / static_cast<double>(o.surface_markers.size()) : kNaN;
-  }
+  const Eigen::VectorXd h = mean_height(markers, o.base_markers, o.base_marker_height_m);
+  const Eigen::VectorXd surf = mean_height(markers, o.surface_markers, 0.0);
 
   if (force) {
     res.contact_time_s = force->contact_time_s;
@@ -231,69 +566,8 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
     res.end_time_s = force->end_time_s;
   }
 
-  // The frame where the face first appears below the mat top (after a frame
-  // above it, and staying below in most of the next three present frames);
-  // with a force record, the candidate nearest the force's contact.
-  int crossing = -1;
-  {
-    const double nominal = force ? frame_at(force->contact_time_s) : kNaN;
-    int last_above = -1;
-    for (int i = 0; i < nf; ++i) {
-      if (!std::isfinite(h[i])) continue;
-      if (h[i] >= top) {
-        last_above = i;
-        continue;
-      }
-      if (last_above < 0) continue;
-      int seen = 0, below = 0;
-      for (int k = i + 1; k < nf && seen < 3; ++k) {
-        if (!std::isfinite(h[k])) continue;
-        ++seen;
-        below += h[k] < top;
-      }
-      if (seen > 0 && 2 * below < seen) continue;  // a stray frame
-      if (crossing < 0 || (std::isfinite(nominal) && std::abs(i - nominal) < std::abs(crossing - nominal))) {
-        crossing = i;
-      }
-      if (!std::isfinite(nominal)) break;
-      last_above = -1;  // the next candidate needs a new approach from above
-    }
-  }
-
-  // Free-fall fit and the video contact instant.
-  FreeFallFit ff;
-  if (crossing >= 0) {
-    const double t_cross = t_video(crossing);
-    std::vector<double> ts, zs;
-    for (int i = crossing - 1; i >= 0 && t_video(i) >= t_cross - o.freefall_window_s; --i) {
-      if (std::isfinite(h[i]) && h[i] >= top + o.freefall_clearance_m) {
-        ts.push_back(t_video(i));
-        zs.push_back(h[i]);
-      }
-    }
-    ff = fit_free_fall(Eigen::Map<Eigen::VectorXd>(ts.data(), static_cast<Eigen::Index>(ts.size())),
-                       Eigen::Map<Eigen::VectorXd>(zs.data(), static_cast<Eigen::Index>(zs.size())), g, top,
-                       t_cross);
-    res.freefall_frames = ff.n_frames;
-    if (static_cast<int>(ts.size()) < o.min_freefall_frames) {
-      std::vector<std::string> names;
-      for (int p : o.base_markers) names.push_back(name(p));
-      reasons.push_back(fmt::format("video: only {} free-fall frames of the base markers ({}) in the {:.0f} ms before "
-                                    "contact (need {})",
-                                    ts.size(), join(names, ", "), 1e3 * o.freefall_window_s, o.min_freefall_frames));
-    } else if (!ff.ok) {
-      reasons.push_back("video: the free-fall fit before contact does not reach the mat top");
-    }
-    if (ff.ok) {
-      res.impact_velocity_m_s = ff.contact_speed_m_s;
-      res.impact_velocity_ci_m_s = ff.contact_speed_ci_m_s;
-      res.video_contact_time_s = ff.contact_time_s;
-      res.freefall_rms_m = ff.rms_m;
-    }
-  } else {
-    reasons.push_back(fmt::format("video: the impactor's contact face is never seen reaching the mat top (z = {:.3f} m)",
-                                  top));
-  }
+  const int crossing = find_crossing(h, top, force ? clock.frame(force->contact_time_s) : kNaN);
+  const FreeFallFit ff = free_fall_before(h, crossing, clock, o, res, reasons);
 
   // Clock offset.
   if (force && ff.ok) {
@@ -306,236 +580,25 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
   }
   const double offset = std::isfinite(res.video_offset_s) ? res.video_offset_s : 0.0;
 
-  // The contact on the video clock.
-  double start_v = kNaN, end_v = kNaN;
-  if (ff.ok) {
-    start_v = ff.contact_time_s;
-  } else if (force) {
-    start_v = force->contact_time_s + offset;
-  } else if (crossing >= 0) {
-    start_v = t_video(crossing - 0.5);
-  }
-  if (force && force->end_found) {
-    end_v = force->end_time_s + offset;
-  } else if (std::isfinite(start_v)) {
-    end_v = t_video(nf - 1);
-    for (int i = std::max(0, static_cast<int>(std::ceil(frame_at(start_v)))) + 1; i < nf; ++i) {
-      if (std::isfinite(h[i]) && h[i] >= top) {
-        end_v = t_video(i);
-        break;
-      }
-    }
-  }
-
+  const auto [start_v, end_v] = contact_on_video(force, ff, crossing, h, top, offset, clock);
   if (std::isfinite(start_v) && end_v > start_v) {
-    const int first = static_cast<int>(std::ceil(frame_at(start_v)));
-    const int last = static_cast<int>(std::floor(frame_at(end_v)));
-
-    // Marker coverage from coverage_lead_s before contact to the end of contact.
-    {
-      const int c0 = static_cast<int>(std::ceil(frame_at(start_v - o.coverage_lead_s)));
-      const int total = std::max(1, last - c0 + 1);
-      std::vector<std::string> missing;
-      for (int p : o.base_markers) {
-        int present = 0, gap = 0, longest = 0;
-        for (int i = c0; i <= last; ++i) {
-          const bool ok = i >= 0 && i < nf && std::isfinite(markers.lab_m(i, 3 * p + 2));
-          present += ok;
-          gap = ok ? 0 : gap + 1;
-          longest = std::max(longest, gap);
-        }
-        const double share = static_cast<double>(present) / total;
-        if (share < o.min_marker_coverage || longest * dt_v > o.max_marker_gap_s + 1e-9) {
-          missing.push_back(fmt::format("{} ({:.0f} % of frames, longest gap {:.0f} ms)", name(p), 100.0 * share,
-                                        1e3 * longest * dt_v));
-        }
-      }
-      if (!missing.empty()) {
-        reasons.push_back(fmt::format("markers missing around contact (from {:.0f} ms before contact to its end): {}",
-                                      1e3 * o.coverage_lead_s, join(missing, "; ")));
-      }
-    }
-
-    // Max deformation.
-    int imin = -1;
-    for (int i = std::max(0, first); i <= std::min(last, nf - 1); ++i) {
-      if (std::isfinite(h[i]) && (imin < 0 || h[i] < h[imin])) imin = i;
-    }
-    if (imin >= 0) {
-      double hmin = h[imin], umin = 0.0;
-      const int hw = std::max(1, static_cast<int>(std::lround(o.deformation_fit_half_window_s * fps)));
-      Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
-      Eigen::Vector3d atb = Eigen::Vector3d::Zero();
-      int count = 0;
-      for (int i = std::max(0, imin - hw); i <= std::min(nf - 1, imin + hw); ++i) {
-        if (!std::isfinite(h[i])) continue;
-        const double u = i - imin;
-        const Eigen::Vector3d row(1.0, u, u * u);
-        ata += row * row.transpose();
-        atb += row * h[i];
-        ++count;
-      }
-      if (count >= 5) {
-        const Eigen::Vector3d c = ata.ldlt().solve(atb);
-        if (c(2) > 0.0) {
-          const double u = -c(1) / (2.0 * c(2));
-          if (std::abs(u) <= hw) {
-            umin = u;
-            hmin = c(0) + c(1) * u + c(2) * u * u;
-          }
-        }
-      }
-      res.max_deformation_m = top - hmin;
-      res.max_deformation_time_s = t_video(imin + umin) - offset;
-    }
-
-    // Tilt.
-    {
-      std::vector<Eigen::Vector3d> up(nf, Eigen::Vector3d::Constant(kNaN));
-      std::vector<Eigen::Vector3d> pts(o.base_markers.size());
-      const int i0 = std::max(0, first), i1 = std::min(last, nf - 1);
-      for (int i = i0; i <= i1; ++i) {
-        for (std::size_t k = 0; k < o.base_markers.size(); ++k) pts[k] = markers.point(i, o.base_markers[k]);
-        up[i] = base_up_vector(pts);
-      }
-      const int half = std::max(0, o.tilt_smoothing_frames / 2);
-      const int need = half + 1;
-      double worst = kNaN;
-      for (int i = i0; i <= i1; ++i) {
-        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-        int k = 0;
-        for (int j = std::max(i0, i - half); j <= std::min(i1, i + half); ++j) {
-          if (up[j].allFinite()) {
-            sum += up[j];
-            ++k;
-          }
-        }
-        if (k < std::min(need, i1 - i0 + 1)) continue;
-        const double a = angle_from_vertical_deg(sum);
-        if (!(a <= worst)) worst = a;
-      }
-      res.tilt_deg = worst;
-      if (std::isfinite(worst) && worst > o.max_tilt_deg) {
-        reasons.push_back(fmt::format("tilt {:.1f} deg exceeds the {:.1f} deg limit", worst, o.max_tilt_deg));
-      }
+    const int first = static_cast<int>(std::ceil(clock.frame(start_v)));
+    const int last = static_cast<int>(std::floor(clock.frame(end_v)));
+    if (std::string r = coverage_reason(markers, o, clock, start_v, last); !r.empty()) reasons.push_back(r);
+    max_deformation(h, first, last, o, clock, offset, res);
+    res.tilt_deg = worst_tilt_deg(markers, o, first, last);
+    if (std::isfinite(res.tilt_deg) && res.tilt_deg > o.max_tilt_deg) {
+      reasons.push_back(fmt::format("tilt {:.1f} deg exceeds the {:.1f} deg limit", res.tilt_deg, o.max_tilt_deg));
     }
   }
 
   if (force) {
-    const Eigen::VectorXd& t = force->plate.t_s;
-    const Eigen::VectorXd fz = force->plate.f_n.col(2);
-    const Eigen::Index n = t.size();
-    const double t_first = t_video(0);
-
-    // Series over the contact.
-    {
-      const double a = force->contact_time_s - o.series_lead_s, b = force->end_time_s;
-      std::vector<Eigen::Index> rows;
-      for (Eigen::Index k = 0; k < n; ++k) {
-        if (t[k] >= a && t[k] <= b) rows.push_back(k);
-      }
-      const auto m = static_cast<Eigen::Index>(rows.size());
-      Series& s = res.series;
-      s.t_s.resize(m);
-      s.fz_n.resize(m);
-      s.impactor_z_m.resize(m);
-      s.deformation_m.resize(m);
-      s.surface_z_m.resize(m);
-      for (Eigen::Index r = 0; r < m; ++r) {
-        const Eigen::Index k = rows[r];
-        s.t_s[r] = t[k];
-        s.fz_n[r] = fz[k];
-        s.impactor_z_m[r] = interpolate_uniform(h, t_first, dt_v, t[k] + offset);
-        s.deformation_m[r] = top - s.impactor_z_m[r];
-        s.surface_z_m[r] = interpolate_uniform(surf, t_first, dt_v, t[k] + offset);
-      }
-    }
-
-    // Second synchronisation estimate: face heights against free fall plus
-    // the plate force's double integral over the impactor mass.
+    res.series = contact_series(*force, h, surf, o, clock, offset);
     if (ff.ok && std::isfinite(res.video_offset_s) && std::isfinite(end_v)) {
-      const Eigen::Index k0 = std::max<Eigen::Index>(0, force->contact_index - 5);
-      Eigen::VectorXd disp = Eigen::VectorXd::Zero(n);
-      double vel = 0.0;
-      for (Eigen::Index k = k0 + 1; k < n; ++k) {
-        const double step = t[k] - t[k - 1];
-        const double v_new = vel + 0.5 * (fz[k - 1] + fz[k]) / o.impactor_mass_kg * step;
-        disp[k] = disp[k - 1] + 0.5 * (vel + v_new) * step;
-        vel = v_new;
-      }
-      const double dt_f = (t[n - 1] - t[0]) / static_cast<double>(n - 1);
-      std::vector<double> tv, dz;
-      const double search = 0.005;
-      for (int i = std::max(0, static_cast<int>(std::ceil(frame_at(start_v)))); i < nf && t_video(i) <= end_v; ++i) {
-        const double tf = t_video(i) - res.video_offset_s;
-        if (!std::isfinite(h[i]) || tf - search < t[0] || tf + search > t[n - 1]) continue;
-        tv.push_back(t_video(i));
-        dz.push_back(h[i] - ff.height_at(t_video(i), g));
-      }
-      if (tv.size() >= 10) {
-        auto cost = [&](double delta) {
-          double sum = 0.0;
-          for (std::size_t i = 0; i < tv.size(); ++i) {
-            const double r = dz[i] - interpolate_uniform(disp, t[0], dt_f, tv[i] - delta);
-            sum += r * r;
-          }
-          return sum;
-        };
-        const double step = 1e-5;
-        const int steps = static_cast<int>(std::lround(search / step));
-        double best = std::numeric_limits<double>::infinity();
-        int best_k = 0;
-        std::vector<double> c(2 * steps + 1);
-        for (int k = -steps; k <= steps; ++k) {
-          c[k + steps] = cost(res.video_offset_s + k * step);
-          if (c[k + steps] < best) best = c[k + steps], best_k = k;
-        }
-        double refine = 0.0;
-        if (best_k > -steps && best_k < steps) {
-          const double cm = c[best_k + steps - 1], c0 = c[best_k + steps], cp = c[best_k + steps + 1];
-          const double curv = cm - 2.0 * c0 + cp;
-          if (curv > 0.0) refine = 0.5 * (cm - cp) / curv;
-        }
-        res.video_offset_trajectory_s = res.video_offset_s + (best_k + refine) * step;
-      }
+      const double d = trajectory_offset_s(*force, h, ff, res.video_offset_s, start_v, end_v, o, clock);
+      if (std::isfinite(d)) res.video_offset_trajectory_s = d;
     }
-
-    // Force spikes during contact (trial.h): the impulse checks below are
-    // meaningless with one, so they wait for a clean record.
-    const std::string spike = force_spike(t, fz, force->contact_index, force->end_index, o.max_spike_fraction);
-    if (!spike.empty()) reasons.push_back(spike);
-
-    // Impulse check to maximum deformation.
-    if (std::isfinite(res.max_deformation_time_s) && std::isfinite(res.impact_velocity_m_s) &&
-        res.max_deformation_time_s > force->contact_time_s) {
-      const double impulse = integrate(t, fz, force->contact_time_s, res.max_deformation_time_s) -
-                             o.impactor_mass_kg * g * (res.max_deformation_time_s - force->contact_time_s);
-      res.impulse_ratio = impulse / (o.impactor_mass_kg * res.impact_velocity_m_s);
-      res.velocity_from_impulse_m_s = impulse / o.impactor_mass_kg;
-    }
-    // Impulse over the whole contact: restitution.
-    if (force->end_found && std::isfinite(res.impact_velocity_m_s) && force->end_time_s > force->contact_time_s) {
-      const double impulse = integrate(t, fz, force->contact_time_s, force->end_time_s) -
-                             o.impactor_mass_kg * g * (force->end_time_s - force->contact_time_s);
-      res.restitution = impulse / (o.impactor_mass_kg * res.impact_velocity_m_s) - 1.0;
-    }
-    if (spike.empty()) {
-      const double tol = o.impulse_tolerance + std::max(0.0, o.mat_mass_kg) / o.impactor_mass_kg;
-      if (std::isfinite(res.impact_velocity_m_s) && std::isfinite(res.max_deformation_time_s) &&
-          !(std::abs(res.impulse_ratio - 1.0) <= tol)) {
-        reasons.push_back(fmt::format(
-            "impact velocity {:.3f} m/s from video against {:.3g} m/s from the force impulse to maximum deformation "
-            "(ratio {:.3g}, physically within {:.2f}-{:.2f}): check [video].frame_rate_hz, [impactor].mass_kg and the "
-            "force scale",
-            res.impact_velocity_m_s, res.velocity_from_impulse_m_s, res.impulse_ratio, 1.0 - tol, 1.0 + tol));
-      }
-      if (std::isfinite(res.impact_velocity_m_s) && force->end_found && !(res.restitution >= -tol && res.restitution <= 1.0 + tol)) {
-        reasons.push_back(fmt::format(
-            "impulse over the contact is {:.3g} times the impactor's momentum at contact; a rebound bounded by the "
-            "impact speed allows 1-2 (restitution 0-1, tolerance {:.2f})",
-            res.restitution + 1.0, tol));
-      }
-    }
+    impulse_checks(*force, o, res, reasons);
   }
 
   res.accepted = reasons.empty();
@@ -544,6 +607,30 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
 }
 
 }  // namespace
+
+void TrialOptions::validate() const {
+  const std::string w = id.empty() ? std::string("trial options") : fmt::format("trial {} options", id);
+  check::positive(w, "impactor_mass_kg", impactor_mass_kg);
+  check::positive(w, "gravity_m_s2", gravity_m_s2);
+  check::positive(w, "frame_rate_hz", frame_rate_hz);
+  check::at_least(w, "trigger_frame", trigger_frame, 0);
+  check::finite(w, "base_marker_height_m", base_marker_height_m);
+  check::finite(w, "mat_top_z_m", mat_top_z_m);
+  check::in_range(w, "max_tilt_deg", max_tilt_deg, 0.0, 90.0);
+  check::positive(w, "freefall_window_s", freefall_window_s);
+  check::non_negative(w, "freefall_clearance_m", freefall_clearance_m);
+  check::at_least(w, "min_freefall_frames", min_freefall_frames, 3);
+  check::non_negative(w, "coverage_lead_s", coverage_lead_s);
+  check::in_range(w, "min_marker_coverage", min_marker_coverage, 0.0, 1.0);
+  check::non_negative(w, "max_marker_gap_s", max_marker_gap_s);
+  check::positive(w, "max_video_offset_s", max_video_offset_s);
+  check::non_negative(w, "deformation_fit_half_window_s", deformation_fit_half_window_s);
+  check::at_least(w, "tilt_smoothing_frames", tilt_smoothing_frames, 0);
+  check::non_negative(w, "series_lead_s", series_lead_s);
+  check::non_negative(w, "mat_mass_kg", mat_mass_kg);
+  check::positive(w, "impulse_tolerance", impulse_tolerance);
+  check::positive(w, "max_spike_fraction", max_spike_fraction);
+}
 
 double FreeFallFit::height_at(double t_s, double gravity_m_s2) const {
   const double tau = t_s - t_ref_s;
@@ -622,6 +709,9 @@ TrialResult analyse(const forceplate::ForceTrial& force, const reconstruction::T
 
 TrialResult analyse(const forceplate::Resultants& raw_force, const forceplate::ProcessOptions& force_options,
                     const reconstruction::Trajectories& markers, const TrialOptions& options) {
+  // Options a user must fix are an error, not a rejected trial.
+  force_options.validate();
+  options.validate();
   std::optional<forceplate::ForceTrial> force;
   std::string error;
   try {

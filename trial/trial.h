@@ -134,6 +134,12 @@ struct TrialOptions {
   double mat_mass_kg = 0.0;               // all layers; bounds the mat's share of the plate impulse
   double impulse_tolerance = 0.15;        // force scale (a few %) and velocity CI (~1-3 %), generously
   double max_spike_fraction = 0.5;        // of the median-filtered contact peak
+
+  // Throws dropfit::Error naming the field and value when one is out of
+  // range (NaN, a non-positive rate or mass, a negative window, a zero
+  // count); analyse() calls it. Marker indices are checked against the
+  // trajectories there.
+  void validate() const;
 };
 
 // The free-fall fit of the face height (video clock).

@@ -1040,7 +1040,7 @@ SyntheticSession make_session(const SynthOptions& o) {
       tt.gaps.push_back(gap);
     }
 
-    TrialData trial;
+    TrialRecording trial;
     trial.spec = {tt.id, fmt::format("trials/{}", tt.id)};
     trial.tracks = std::move(tracks);
     trial.force.layout = ForceLayout::EightChannel;

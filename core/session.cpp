@@ -1,4 +1,4 @@
-#include "capture/session.h"
+#include "core/session.h"
 
 namespace dropfit {
 
