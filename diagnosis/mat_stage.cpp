@@ -254,6 +254,182 @@ std::string estimate_text(const fitting::FitResult& fit, const EffectCandidate& 
   return s;
 }
 
+// The verdict on a refit against the current model (held-out errors
+// `before`, training fit `small`): empty when it passes.
+std::string verdict(const Trial& t, const HeldOutErrors& before, const TrainingFit& small,
+                    const MatStageOptions& options, double declared_m1_kg) {
+  const double gate = options.gate_noise_sd;
+  if (!t.fit) return "refit failed: " + t.failure;
+  const HeldOutErrors& a = t.errors;
+  const double f0 = before.mean_force_sd(), k0 = before.mean_impactor_sd();
+  const double f1 = a.mean_force_sd(), k1 = a.mean_impactor_sd();
+  // Paired over the held-out trials, on the channel(s) above the noise.
+  bool falls = false, worse = false;
+  for (int ch = 0; ch < 2; ++ch) {
+    const Eigen::VectorXd& b = ch == 0 ? before.force_sd : before.impactor_sd;
+    const Eigen::VectorXd& af = ch == 0 ? a.force_sd : a.impactor_sd;
+    const double e0 = ch == 0 ? f0 : k0, e1 = ch == 0 ? f1 : k1;
+    if (b.size() != af.size()) continue;
+    if (e0 > gate) {
+      const PairedImprovement pi =
+          paired_improvement(b, af, options.decision.t_critical, options.decision.min_relative, 0.0);
+      if (pi.significant) falls = true;
+    }
+    if (e1 > std::max(gate, e0 * (1.0 + options.decision.min_relative))) worse = true;
+  }
+  const TrainingFit large = training_of(*t.fit);
+  const ModelComparison mc = compare_models(small.rss, small.k, large.rss, large.k, large.n, large.rho1,
+                                            options.criterion, options.decision.ic_min_drop);
+  const std::string numbers = fmt::format(
+      "held-out force {:.2f} -> {:.2f} noise SDs, impactor travel {:.2f} -> {:.2f} noise SDs; {} change {:+.1f} "
+      "on N_eff = {:.0f}",
+      f0, f1, k0, k1, criterion_name(options.criterion), mc.delta, mc.n_eff);
+  // Wald: the layer masses must stand beyond wald_sd SE from the declared
+  // split (the other effects' SEs, scaled by a residual the candidate may
+  // only partly explain, are not a test).
+  std::string wald;
+  for (const auto* c : t.adds) {
+    if (!c->masses) continue;
+    for (const auto& e : t.fit->estimates) {
+      if (e.name != "m1_kg") continue;
+      if (!(std::abs(e.value - declared_m1_kg) > options.wald_sd * e.se))
+        wald = fmt::format("{} = {} is within {} SE ({}) of {} (absent)", e.name, fmt_value(e.value),
+                           options.wald_sd, fmt_value(e.se), fmt_value(declared_m1_kg));
+    }
+  }
+  // The effect's own parameters must be set by the data, not by the box;
+  // and a Maxwell arm relaxing within two plate samples cannot be told
+  // from element 1's own damping (it acts as a dashpot of k tau).
+  std::string own;
+  for (const auto* c : t.adds)
+    for (const auto& e : t.fit->estimates) {
+      if (std::find(c->free.begin(), c->free.end(), e.name) == c->free.end()) continue;
+      const bool at_bound = std::any_of(t.fit->warnings.begin(), t.fit->warnings.end(), [&](const std::string& w) {
+        return w.rfind(e.name + " ", 0) == 0 && w.find("its bound") != std::string::npos;
+      });
+      if (at_bound) own = fmt::format("{} = {} sits at its bound: the box, not the data, sets it", e.name,
+                                      fmt_value(e.value));
+      if (e.name == "maxwell_tau_s" && e.value < 2.0 * a.dt_s)
+        own = fmt::format("maxwell_tau_s = {} ms relaxes within two plate samples ({} ms): a dashpot, not a "
+                          "separate rate dependence",
+                          fmt_value(1e3 * e.value), fmt_value(2e3 * a.dt_s));
+    }
+  if (!falls) return "held-out error does not fall beyond noise (" + numbers + ")";
+  if (!own.empty()) return own;
+  if (!wald.empty()) return wald;
+  if (worse) return "the other channel gets worse (" + numbers + ")";
+  if (!mc.larger_supported) return "not supported by the information criterion (" + numbers + ")";
+  return "";
+}
+
+// No single effect passes: two effects present together can each move
+// one channel the wrong way on its own (a lower unloading stiffness
+// shortens the rebound the Maxwell arm lengthens). Pairs are tried with
+// the singles that brought the most down, and a pair is kept only when
+// it passes the same test and beats each of its members alone.
+// Returns the index of the best passing pair in `pairs`, or -1.
+int refit_pairs(const std::vector<fitting::TrialData>& acc, const std::vector<EffectCandidate>& cands,
+                const std::vector<bool>& used, const std::vector<Trial>& tries, const HeldOutErrors& before,
+                const TrainingFit& small, const fitting::FitOptions& current_options,
+                const fitting::FitResult& current, const MatStageOptions& options, double declared_m1_kg,
+                std::vector<Trial>& pairs, std::vector<Rejected>& rejected) {
+  int best = -1;
+  std::vector<size_t> order;
+  for (size_t i = 0; i < tries.size(); ++i)
+    if (tries[i].fit && tries[i].errors.combined() < before.combined()) order.push_back(i);
+  std::sort(order.begin(), order.end(),
+            [&](size_t a, size_t b) { return tries[a].errors.combined() < tries[b].errors.combined(); });
+  if (order.size() > static_cast<size_t>(options.pairs)) order.resize(options.pairs);
+  std::vector<std::pair<const EffectCandidate*, const EffectCandidate*>> seen;
+  for (size_t lead : order) {
+    const EffectCandidate* a = tries[lead].adds.front();
+    for (size_t c = 0; c < cands.size(); ++c) {
+      const EffectCandidate* b = &cands[c];
+      if (used[c] || b->name == a->name) continue;
+      const bool dup = std::any_of(seen.begin(), seen.end(), [&](const auto& p) {
+        return (p.first == a && p.second == b) || (p.first == b && p.second == a);
+      });
+      if (dup) continue;
+      seen.emplace_back(a, b);
+      pairs.push_back(make_trial(current_options, tries[lead].fit ? *tries[lead].fit : current, {a, b},
+                                 options.refit_starts));
+    }
+  }
+  run_trials(acc, pairs, options.threads);
+  for (size_t i = 0; i < pairs.size(); ++i) {
+    Trial& t = pairs[i];
+    std::string why = verdict(t, before, small, options, declared_m1_kg);
+    if (why.empty()) {
+      // Each member must matter: the pair against each member alone.
+      for (const auto* m : t.adds) {
+        const auto it = std::find_if(tries.begin(), tries.end(),
+                                     [&](const Trial& s) { return s.adds.front() == m; });
+        if (it == tries.end() || !it->fit) continue;
+        const Eigen::VectorXd alone = combined_per_trial(it->errors), both = combined_per_trial(t.errors);
+        if (alone.size() != both.size()) continue;
+        const PairedImprovement pi =
+            paired_improvement(alone, both, options.decision.t_critical, options.decision.min_relative, 0.0);
+        if (!pi.significant)
+          why = fmt::format("no better than {} alone (held-out {:.2f} -> {:.2f} noise SDs)", m->name,
+                            pi.mean_before, pi.mean_after);
+      }
+    }
+    if (!why.empty()) {
+      rejected.push_back({"mat", t.names(), "together: " + t.variants() + ": " + why});
+      continue;
+    }
+    if (best < 0 || t.errors.combined() < pairs[best].errors.combined()) best = static_cast<int>(i);
+  }
+  return best;
+}
+
+// Structure left beyond the noise after the library: unexplained, with its
+// frequency.
+void add_remaining(MatDiagnosis& out, const HeldOutErrors& before, const MatStageOptions& options) {
+  const double f_end = before.mean_force_sd(), k_end = before.mean_impactor_sd();
+  if (f_end > options.unexplained_noise_sd || k_end > options.unexplained_noise_sd) {
+    const PeriodicPeak peak = periodogram_peak(before.force_residual_n, before.dt_s, options.decision.alpha, 5.0);
+    Remaining r;
+    r.stage = "mat";
+    r.name = peak.significant ? "periodic_oscillation" : "unexplained_structure";
+    r.description = fmt::format(
+        "held-out residual stays above the noise (force {:.2f}, impactor travel {:.2f} noise SDs) after the "
+        "library's effects{}",
+        f_end, k_end,
+        peak.significant ? fmt::format("; its strongest period is {:.1f} Hz ({:.0f} % of the force residual's variance)",
+                                       peak.frequency_hz, 100.0 * peak.share)
+                         : "");
+    if (peak.significant) r.frequency_hz = peak.frequency_hz;
+    out.remaining.push_back(r);
+  }
+}
+
+// The kept refit's effects into the result; their other variants marked used.
+void name_effects(MatDiagnosis& out, const Trial& kept, const HeldOutErrors& before,
+                  const std::vector<EffectCandidate>& cands, std::vector<bool>& used) {
+  for (const auto* c : kept.adds) {
+    Effect eff;
+    eff.stage = "mat";
+    eff.name = c->name;
+    eff.error_before = error_set(before);
+    eff.error_after = error_set(kept.errors);
+    eff.estimate = estimate_of(*kept.fit, *c);
+    eff.evidence = fmt::format(
+        "{}: {}{}; held-out force RMS {:.2f} -> {:.2f} noise SDs ({:.2f} -> {:.2f} % of peak), impactor travel "
+        "{:.2f} -> {:.2f} noise SDs ({:.2f} -> {:.2f} mm) over {} held-out trials",
+        c->variant, estimate_text(*kept.fit, *c),
+        kept.adds.size() > 1 ? "; added together with " + kept.names() + " (neither passes alone)" : "",
+        before.mean_force_sd(), kept.errors.mean_force_sd(), before.force_pct_peak.mean(),
+        kept.errors.force_pct_peak.mean(), before.mean_impactor_sd(), kept.errors.mean_impactor_sd(),
+        before.impactor_mm.mean(), kept.errors.impactor_mm.mean(), kept.errors.ids.size());
+    out.effects.push_back(eff);
+    // The other variants of a kept name are done with; later rounds
+    // re-judge what remains.
+    for (size_t c2 = 0; c2 < cands.size(); ++c2)
+      if (&cands[c2] == c || cands[c2].name == c->name) used[c2] = true;
+  }
+}
+
 }  // namespace
 
 MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const MatStageOptions& options) {
@@ -284,71 +460,6 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
   const auto cands = library(options.candidates);
   std::vector<bool> used(cands.size(), false);
 
-  // The verdict on a refit against the current model: empty when it passes.
-  auto verdict = [&](const Trial& t, const TrainingFit& small) -> std::string {
-    if (!t.fit) return "refit failed: " + t.failure;
-    const HeldOutErrors& a = t.errors;
-    const double f0 = before.mean_force_sd(), k0 = before.mean_impactor_sd();
-    const double f1 = a.mean_force_sd(), k1 = a.mean_impactor_sd();
-    // Paired over the held-out trials, on the channel(s) above the noise.
-    bool falls = false, worse = false;
-    for (int ch = 0; ch < 2; ++ch) {
-      const Eigen::VectorXd& b = ch == 0 ? before.force_sd : before.impactor_sd;
-      const Eigen::VectorXd& af = ch == 0 ? a.force_sd : a.impactor_sd;
-      const double e0 = ch == 0 ? f0 : k0, e1 = ch == 0 ? f1 : k1;
-      if (b.size() != af.size()) continue;
-      if (e0 > gate) {
-        const PairedImprovement pi =
-            paired_improvement(b, af, options.decision.t_critical, options.decision.min_relative, 0.0);
-        if (pi.significant) falls = true;
-      }
-      if (e1 > std::max(gate, e0 * (1.0 + options.decision.min_relative))) worse = true;
-    }
-    const TrainingFit large = training_of(*t.fit);
-    const ModelComparison mc = compare_models(small.rss, small.k, large.rss, large.k, large.n, large.rho1,
-                                              options.criterion, options.decision.ic_min_drop);
-    const std::string numbers = fmt::format(
-        "held-out force {:.2f} -> {:.2f} noise SDs, impactor travel {:.2f} -> {:.2f} noise SDs; {} change {:+.1f} "
-        "on N_eff = {:.0f}",
-        f0, f1, k0, k1, criterion_name(options.criterion), mc.delta, mc.n_eff);
-    // Wald: the layer masses must stand beyond wald_sd SE from the declared
-    // split (the other effects' SEs, scaled by a residual the candidate may
-    // only partly explain, are not a test).
-    std::string wald;
-    for (const auto* c : t.adds) {
-      if (!c->masses) continue;
-      for (const auto& e : t.fit->estimates) {
-        if (e.name != "m1_kg") continue;
-        if (!(std::abs(e.value - base.m1_kg) > options.wald_sd * e.se))
-          wald = fmt::format("{} = {} is within {} SE ({}) of {} (absent)", e.name, fmt_value(e.value),
-                             options.wald_sd, fmt_value(e.se), fmt_value(base.m1_kg));
-      }
-    }
-    // The effect's own parameters must be set by the data, not by the box;
-    // and a Maxwell arm relaxing within two plate samples cannot be told
-    // from element 1's own damping (it acts as a dashpot of k tau).
-    std::string own;
-    for (const auto* c : t.adds)
-      for (const auto& e : t.fit->estimates) {
-        if (std::find(c->free.begin(), c->free.end(), e.name) == c->free.end()) continue;
-        const bool at_bound = std::any_of(t.fit->warnings.begin(), t.fit->warnings.end(), [&](const std::string& w) {
-          return w.rfind(e.name + " ", 0) == 0 && w.find("its bound") != std::string::npos;
-        });
-        if (at_bound) own = fmt::format("{} = {} sits at its bound: the box, not the data, sets it", e.name,
-                                        fmt_value(e.value));
-        if (e.name == "maxwell_tau_s" && e.value < 2.0 * a.dt_s)
-          own = fmt::format("maxwell_tau_s = {} ms relaxes within two plate samples ({} ms): a dashpot, not a "
-                            "separate rate dependence",
-                            fmt_value(1e3 * e.value), fmt_value(2e3 * a.dt_s));
-      }
-    if (!falls) return "held-out error does not fall beyond noise (" + numbers + ")";
-    if (!own.empty()) return own;
-    if (!wald.empty()) return wald;
-    if (worse) return "the other channel gets worse (" + numbers + ")";
-    if (!mc.larger_supported) return "not supported by the information criterion (" + numbers + ")";
-    return "";
-  };
-
   for (int round = 0; round < options.max_effects; ++round) {
     const double f0 = before.mean_force_sd(), k0 = before.mean_impactor_sd();
     if (f0 <= gate && k0 <= gate) break;  // at the noise floor: nothing left to explain
@@ -362,7 +473,7 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
     const TrainingFit small = training_of(current);
     int best = -1;
     for (size_t i = 0; i < tries.size(); ++i) {
-      const std::string why = verdict(tries[i], small);
+      const std::string why = verdict(tries[i], before, small, options, base.m1_kg);
       if (!why.empty()) {
         out.rejected.push_back({"mat", tries[i].names(), tries[i].variants() + ": " + why});
         continue;
@@ -370,60 +481,11 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
       if (best < 0 || tries[i].errors.combined() < tries[best].errors.combined()) best = static_cast<int>(i);
     }
 
-    // No single effect passes: two effects present together can each move
-    // one channel the wrong way on its own (a lower unloading stiffness
-    // shortens the rebound the Maxwell arm lengthens). Pairs are tried with
-    // the singles that brought the most down, and a pair is kept only when
-    // it passes the same test and beats each of its members alone.
+    // No single effect passes: pairs (refit_pairs).
     std::vector<Trial> pairs;
-    if (best < 0 && options.pairs > 0) {
-      std::vector<size_t> order;
-      for (size_t i = 0; i < tries.size(); ++i)
-        if (tries[i].fit && tries[i].errors.combined() < before.combined()) order.push_back(i);
-      std::sort(order.begin(), order.end(),
-                [&](size_t a, size_t b) { return tries[a].errors.combined() < tries[b].errors.combined(); });
-      if (order.size() > static_cast<size_t>(options.pairs)) order.resize(options.pairs);
-      std::vector<std::pair<const EffectCandidate*, const EffectCandidate*>> seen;
-      for (size_t lead : order) {
-        const EffectCandidate* a = tries[lead].adds.front();
-        for (size_t c = 0; c < cands.size(); ++c) {
-          const EffectCandidate* b = &cands[c];
-          if (used[c] || b->name == a->name) continue;
-          const bool dup = std::any_of(seen.begin(), seen.end(), [&](const auto& p) {
-            return (p.first == a && p.second == b) || (p.first == b && p.second == a);
-          });
-          if (dup) continue;
-          seen.emplace_back(a, b);
-          pairs.push_back(make_trial(current_options, tries[lead].fit ? *tries[lead].fit : current, {a, b},
-                                     options.refit_starts));
-        }
-      }
-      run_trials(acc, pairs, options.threads);
-      for (size_t i = 0; i < pairs.size(); ++i) {
-        Trial& t = pairs[i];
-        std::string why = verdict(t, small);
-        if (why.empty()) {
-          // Each member must matter: the pair against each member alone.
-          for (const auto* m : t.adds) {
-            const auto it = std::find_if(tries.begin(), tries.end(),
-                                         [&](const Trial& s) { return s.adds.front() == m; });
-            if (it == tries.end() || !it->fit) continue;
-            const Eigen::VectorXd alone = combined_per_trial(it->errors), both = combined_per_trial(t.errors);
-            if (alone.size() != both.size()) continue;
-            const PairedImprovement pi =
-                paired_improvement(alone, both, options.decision.t_critical, options.decision.min_relative, 0.0);
-            if (!pi.significant)
-              why = fmt::format("no better than {} alone (held-out {:.2f} -> {:.2f} noise SDs)", m->name,
-                                pi.mean_before, pi.mean_after);
-          }
-        }
-        if (!why.empty()) {
-          out.rejected.push_back({"mat", t.names(), "together: " + t.variants() + ": " + why});
-          continue;
-        }
-        if (best < 0 || t.errors.combined() < pairs[best].errors.combined()) best = static_cast<int>(i);
-      }
-    }
+    if (best < 0 && options.pairs > 0)
+      best = refit_pairs(acc, cands, used, tries, before, small, current_options, current, options, base.m1_kg, pairs,
+                         out.rejected);
     if (best < 0) break;
     Trial& kept = pairs.empty() ? tries[best] : pairs[best];
 
@@ -450,27 +512,7 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
       }
     }
 
-    for (const auto* c : kept.adds) {
-      Effect eff;
-      eff.stage = "mat";
-      eff.name = c->name;
-      eff.error_before = error_set(before);
-      eff.error_after = error_set(kept.errors);
-      eff.estimate = estimate_of(*kept.fit, *c);
-      eff.evidence = fmt::format(
-          "{}: {}{}; held-out force RMS {:.2f} -> {:.2f} noise SDs ({:.2f} -> {:.2f} % of peak), impactor travel "
-          "{:.2f} -> {:.2f} noise SDs ({:.2f} -> {:.2f} mm) over {} held-out trials",
-          c->variant, estimate_text(*kept.fit, *c),
-          kept.adds.size() > 1 ? "; added together with " + kept.names() + " (neither passes alone)" : "",
-          before.mean_force_sd(), kept.errors.mean_force_sd(), before.force_pct_peak.mean(),
-          kept.errors.force_pct_peak.mean(), before.mean_impactor_sd(), kept.errors.mean_impactor_sd(),
-          before.impactor_mm.mean(), kept.errors.impactor_mm.mean(), kept.errors.ids.size());
-      out.effects.push_back(eff);
-      // The other variants of a kept name are done with; later rounds
-      // re-judge what remains.
-      for (size_t c2 = 0; c2 < cands.size(); ++c2)
-        if (&cands[c2] == c || cands[c2].name == c->name) used[c2] = true;
-    }
+    name_effects(out, kept, before, cands, used);
     current = std::move(*kept.fit);
     current_options = kept.options;
     current_options.initial = MatParams{};
@@ -484,23 +526,7 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
   out.options_after = current_options;
   out.error_after = error_set(before);
   out.fit_after = current;
-  // Structure left beyond the noise: unexplained, with its frequency.
-  const double f_end = before.mean_force_sd(), k_end = before.mean_impactor_sd();
-  if (f_end > options.unexplained_noise_sd || k_end > options.unexplained_noise_sd) {
-    const PeriodicPeak peak = periodogram_peak(before.force_residual_n, before.dt_s, options.decision.alpha, 5.0);
-    Remaining r;
-    r.stage = "mat";
-    r.name = peak.significant ? "periodic_oscillation" : "unexplained_structure";
-    r.description = fmt::format(
-        "held-out residual stays above the noise (force {:.2f}, impactor travel {:.2f} noise SDs) after the "
-        "library's effects{}",
-        f_end, k_end,
-        peak.significant ? fmt::format("; its strongest period is {:.1f} Hz ({:.0f} % of the force residual's variance)",
-                                       peak.frequency_hz, 100.0 * peak.share)
-                         : "");
-    if (peak.significant) r.frequency_hz = peak.frequency_hz;
-    out.remaining.push_back(r);
-  }
+  add_remaining(out, before, options);
   return out;
 }
 
