@@ -144,6 +144,37 @@ void not_assessed(DiagnosisResult& result, const std::string& stage, const std::
   result.not_assessed.push_back(stage);
 }
 
+// The clock offset once more, from each trial's contact instant as the final
+// mat model places it (the onset estimate minus the fitted contact shift):
+// the contact-instant estimate carries the plate's onset lag, which depends
+// on the mat (its layer masses, how fast it stiffens), and a mat the
+// baseline got wrong reads as a clock offset. The fitted contact has no
+// onset lag. Empty when fewer than two trials have a fitted contact or the
+// offsets scatter (the onset verdict then stands).
+std::optional<SyncDiagnosis> rejudge_sync(const std::vector<trial::TrialResult>& results,
+                                          const fitting::FitResult& fit, const SyncStageOptions& options,
+                                          double onset_offset_s) {
+  std::vector<trial::TrialResult> fitted = results;
+  int n = 0;
+  for (auto& r : fitted) {
+    for (const auto& t : fit.trials) {
+      if (t.id != r.id || !std::isfinite(t.contact_shift_se_s) || !std::isfinite(r.video_offset_s)) continue;
+      r.video_offset_s -= t.contact_shift_s;
+      ++n;
+    }
+  }
+  if (n < 2) return std::nullopt;
+  SyncStageOptions so = options;
+  so.onset_lag_s = 0.0;
+  SyncDiagnosis refit = diagnose_sync(fitted, so);
+  if (!refit.remaining.empty()) return std::nullopt;
+  refit.notes.push_back(fmt::format(
+      "sync: judged on the contact instants the final mat model fits ({} trials; the plate-onset estimate gave "
+      "{:.2f} ms and was used to align the plate stage)",
+      n, 1e3 * onset_offset_s));
+  return refit;
+}
+
 }  // namespace
 
 DiagnosisResult diagnose(const SessionState& state, const DiagnosisOptions& options) {
@@ -241,34 +272,10 @@ DiagnosisResult diagnose(const SessionState& state, const DiagnosisOptions& opti
       mo.baseline = run_fit;
     if (!data.empty()) {
       const MatDiagnosis md = diagnose_mat(data, mo);
-      // The clock offset once more, from each trial's contact instant as the
-      // final mat model places it: the contact-instant estimate carries the
-      // plate's onset lag, which depends on the mat (its layer masses, how
-      // fast it stiffens), and a mat the baseline got wrong reads as a
-      // clock offset. The fitted contact has no onset lag.
-      if (sync && md.fit_after) {
-        std::vector<trial::TrialResult> fitted = sync_results;
-        int n = 0;
-        for (auto& r : fitted) {
-          for (const auto& t : md.fit_after->trials) {
-            if (t.id != r.id || !std::isfinite(t.contact_shift_se_s) || !std::isfinite(r.video_offset_s)) continue;
-            r.video_offset_s -= t.contact_shift_s;
-            ++n;
-          }
-        }
-        if (n >= 2) {
-          SyncStageOptions so = options.sync_stage;
-          so.onset_lag_s = 0.0;
-          SyncDiagnosis refit = diagnose_sync(fitted, so);
-          if (refit.remaining.empty()) {
-            refit.notes.push_back(fmt::format(
-                "sync: judged on the contact instants the final mat model fits ({} trials; the plate-onset "
-                "estimate gave {:.2f} ms and was used to align the plate stage)",
-                n, 1e3 * sync->offset_s));
-            sync = std::move(refit);
-          }
-        }
-      }
+      // Sync once more, on the contacts the final mat model fits.
+      if (sync && md.fit_after)
+        if (auto refit = rejudge_sync(sync_results, *md.fit_after, options.sync_stage, sync->offset_s))
+          sync = std::move(refit);
       flush();
       append(result, md);
       if (!md.effects.empty() && md.fit_after) result.mat_fit = md.fit_after;
