@@ -398,7 +398,8 @@ int sample_count(const Impact& im) {
   return static_cast<int>(std::floor((im.duration_s - im.first_output_s) / im.output_dt_s + 1e-9)) + 1;
 }
 
-Layout make_layout(const Model5ParamsT<double>& q, const Model5Geometry& geo, const Impact& impact) {
+// Checks the parameters, geometry and output timing a layout is built from.
+static void check_layout_inputs(const Model5ParamsT<double>& q, const Model5Geometry& geo, const Impact& impact) {
   MatParams p;
   p.k1_n_m = q.k1_n_m;
   p.k2_n_m = q.k2_n_m;
@@ -414,8 +415,10 @@ Layout make_layout(const Model5ParamsT<double>& q, const Model5Geometry& geo, co
   require(q.r1_unload_n_s_m >= 0.0, "r1_unload_n_s_m must be >= 0 when on");
   require(impact.first_output_s >= 0.0 && impact.first_output_s < impact.output_dt_s,
           fmt::format("first output time {} s must lie in [0, output step)", impact.first_output_s));
+}
 
-  Layout L;
+// The node grid: counts, spacing, first centre and node coordinates.
+static void place_nodes(const Model5Geometry& geo, Layout& L) {
   const int nx = geo.nodes_x, ny = geo.nodes_y;
   L.nx = nx;
   L.ny = ny;
@@ -429,8 +432,11 @@ Layout make_layout(const Model5ParamsT<double>& q, const Model5Geometry& geo, co
   L.node_y_m.resize(ny);
   for (int ix = 0; ix < nx; ++ix) L.node_x_m(ix) = L.x0 + ix * L.dx;
   for (int iy = 0; iy < ny; ++iy) L.node_y_m(iy) = L.y0 + iy * L.dy;
+}
 
-  // Contact weights and lever arms per cell (see model5.h).
+// Contact weights and lever arms per cell under the impactor's face (see model5.h).
+static void place_contact(const Model5Geometry& geo, Layout& L) {
+  const int nx = L.nx, ny = L.ny;
   const double fx0 = geo.impact_x_m - 0.5 * geo.footprint_length_m, fx1 = geo.impact_x_m + 0.5 * geo.footprint_length_m;
   const double fy0 = geo.impact_y_m - 0.5 * geo.footprint_width_m, fy1 = geo.impact_y_m + 0.5 * geo.footprint_width_m;
   L.face_area = geo.footprint_length_m * geo.footprint_width_m;
@@ -456,8 +462,11 @@ Layout make_layout(const Model5ParamsT<double>& q, const Model5Geometry& geo, co
   }
   require(wsum > 1e-9, fmt::format("the impactor's face at ({}, {}) m misses the {} x {} m mat", geo.impact_x_m,
                                    geo.impact_y_m, geo.mat_length_m, geo.mat_width_m));
+}
 
-  // Shear stencil and frame links.
+// Shear stencil between neighbouring cells and the frame links at the edges.
+static void link_cells(Layout& L) {
+  const int nx = L.nx, ny = L.ny;
   const double fxp = L.dy / L.dx, fyp = L.dx / L.dy;
   for (int ix = 0; ix < nx; ++ix) {
     for (int iy = 0; iy < ny; ++iy) {
@@ -484,8 +493,13 @@ Layout make_layout(const Model5ParamsT<double>& q, const Model5Geometry& geo, co
 
   L.frame_w.assign(L.n, 0.0);
   for (std::size_t e = 0; e < L.frame_cell.size(); ++e) L.frame_w[L.frame_cell[e]] = L.frame_f[e];
+}
 
-  // Impactor.
+// The impactor: tilt inertias, initial tilt and rate, clearance and impact-point bracket.
+static void place_impactor(const Model5Geometry& geo, const Impact& impact, Layout& L) {
+  const int nx = L.nx, ny = L.ny;
+  const double fx0 = geo.impact_x_m - 0.5 * geo.footprint_length_m, fx1 = geo.impact_x_m + 0.5 * geo.footprint_length_m;
+  const double fy0 = geo.impact_y_m - 0.5 * geo.footprint_width_m, fy1 = geo.impact_y_m + 0.5 * geo.footprint_width_m;
   const double M = impact.mass_kg;
   const double h2 = geo.impactor_height_m * geo.impactor_height_m;
   L.inertia_x = geo.inertia_tilt_x_kg_m2 > 0.0 ? geo.inertia_tilt_x_kg_m2
@@ -506,7 +520,10 @@ Layout make_layout(const Model5ParamsT<double>& q, const Model5Geometry& geo, co
   bracket(geo.impact_y_m, L.y0, L.dy, ny, &L.py, &L.fyw);
   L.px1 = std::min(L.px + 1, nx - 1);
   L.py1 = std::min(L.py + 1, ny - 1);
+}
 
+// The integration step: shear stability and creep accuracy limits, sub-steps per output.
+static void choose_step(const Model5ParamsT<double>& q, const Model5Geometry& geo, const Impact& impact, Layout& L) {
   // Step: the accuracy cap max_step_s, and the explicit part's stability:
   // Gershgorin bounds w^2 on M^-1 K_shear and g on M^-1 C_shear per node,
   // then w^2 dt^2 + 4 g dt = 4 (the kick-drift limit), times
@@ -562,6 +579,16 @@ Layout make_layout(const Model5ParamsT<double>& q, const Model5Geometry& geo, co
     L.n_first = std::max(1, static_cast<int>(std::ceil(impact.first_output_s / dt_limit - 1e-9)));
     L.first_step_s = impact.first_output_s / L.n_first;
   }
+}
+
+Layout make_layout(const Model5ParamsT<double>& q, const Model5Geometry& geo, const Impact& impact) {
+  check_layout_inputs(q, geo, impact);
+  Layout L;
+  place_nodes(geo, L);
+  place_contact(geo, L);
+  link_cells(L);
+  place_impactor(geo, impact, L);
+  choose_step(q, geo, impact, L);
   return L;
 }
 
