@@ -105,13 +105,20 @@ void parse_param(dropfit::synth::MatParams& p, const std::string& text) {
   *field = value;
 }
 
-}  // namespace
+// The command-line values that are not fields of SynthOptions (applied after parsing).
+struct CliValues {
+  std::string out_dir, truth_path, world;
+  int model = 1;
+  std::vector<std::string> effects, gaps, params;
+  bool drift_whole = false, random_effects = false;
+  std::string mat_markers, base_markers;
+  std::vector<double> window;
+};
 
-int main(int argc, char** argv) {
-  namespace fs = std::filesystem;
-  using dropfit::synth::SynthOptions;
+// The options of the world preset chosen by --world and --seed (prescanned); false after printing an error.
+bool preset_options(int argc, char** argv, std::string& world, dropfit::synth::SynthOptions& o) {
   // The world preset first (every other option starts from its values).
-  std::string world = prescan(argc, argv, "--world");
+  world = prescan(argc, argv, "--world");
   if (world.empty()) world = "lab";
   std::uint64_t seed = 1;
   const std::string seed_text = prescan(argc, argv, "--seed");
@@ -120,10 +127,9 @@ int main(int argc, char** argv) {
       seed = std::stoull(seed_text);
     } catch (const std::exception&) {
       fmt::print(stderr, "dropfit-synth: error: --seed '{}' is not a non-negative integer\n", seed_text);
-      return 1;
+      return false;
     }
   }
-  SynthOptions o;
   try {
     if (world == "classic")
       o.seed = seed;
@@ -135,49 +141,58 @@ int main(int argc, char** argv) {
       throw dropfit::Error(fmt::format("--world '{}': expected classic, lab or independent", world));
   } catch (const std::exception& e) {
     fmt::print(stderr, "dropfit-synth: error: {}\n", e.what());
-    return 1;
+    return false;
   }
-  std::string out_dir, truth_path;
-  int model = o.model.number;
-  std::vector<std::string> effects, gaps, params;
-  bool drift_whole = o.effects.baseline_drift_whole_record, random_effects = false;
-  std::string mat_markers = o.mat_marker_motion == dropfit::synth::MatMarkerMotion::Dish ? "dish" : "surface";
-  std::string base_markers =
-      o.base_marker_layout == dropfit::synth::BaseMarkerLayout::DiagonalCorners ? "corners" : "front-back";
-  std::vector<double> window{o.digitised_from_s, o.digitised_to_s};
+  return true;
+}
 
-  CLI::App app{"dropfit-synth: a synthetic drop-test session with known truth"};
-  app.add_option("--out", out_dir, "session folder to create (must not exist or be empty)")->required();
-  app.add_option("--truth", truth_path, "truth JSON to write (outside the session folder)")->required();
-  app.add_option("--world", world,
+// The CLI values' defaults, taken from the preset's options.
+void init_cli_values(const dropfit::synth::SynthOptions& o, CliValues& v) {
+  v.model = o.model.number;
+  v.drift_whole = o.effects.baseline_drift_whole_record;
+  v.random_effects = false;
+  v.mat_markers = o.mat_marker_motion == dropfit::synth::MatMarkerMotion::Dish ? "dish" : "surface";
+  v.base_markers = o.base_marker_layout == dropfit::synth::BaseMarkerLayout::DiagonalCorners ? "corners" : "front-back";
+  v.window = {o.digitised_from_s, o.digitised_to_s};
+}
+
+// Options for the outputs, world, seed, model, parameters and effects.
+void add_run_options(CLI::App& app, CliValues& v, dropfit::synth::SynthOptions& o) {
+  app.add_option("--out", v.out_dir, "session folder to create (must not exist or be empty)")->required();
+  app.add_option("--truth", v.truth_path, "truth JSON to write (outside the session folder)")->required();
+  app.add_option("--world", v.world,
                  "preset: lab (default: a realistic lab session, generator's default mat), independent (lab with a "
                  "random plausible mat and impact speeds drawn from the seed), classic (the older tests' world)")
       ->capture_default_str();
   app.add_option("--seed", o.seed, "random seed")->capture_default_str();
-  app.add_option("--model", model, "mat model 1..4 (paper's Models 1-4; Model 5 is not generated)")
+  app.add_option("--model", v.model, "mat model 1..4 (paper's Models 1-4; Model 5 is not generated)")
       ->check(CLI::Range(1, 4))
       ->capture_default_str();
-  app.add_option("--param", params, "a true mat parameter: name=value (k1_n_m, r1_n_s_m, m1_kg, ...); repeatable");
-  app.add_option("--effect", effects,
+  app.add_option("--param", v.params, "a true mat parameter: name=value (k1_n_m, r1_n_s_m, m1_kg, ...); repeatable");
+  app.add_option("--effect", v.effects,
                  "inject an effect: name=magnitude; names: lens_distortion (k1), lens_distortion_px (px at the "
                  "outermost trial marker), outlier_marker (px), outlier_swap (1: two fit markers swapped in cam2), "
                  "time_offset (ms, video clock ahead), baseline_drift (N/s), force_scale (gain), "
                  "stiffness_nonlinearity (k1_cubic N/m^3), hysteresis (r1_unload N s/m: extra damping), "
                  "hysteresis_elastic (h: elastic force (1-h) lower while unloading), rate_dependence (Maxwell k N/m), "
                  "layer_mass (kg moved to the top layer)");
-  app.add_flag("--random-effects", random_effects, "add a random mix of effects (none, one or several) from the seed");
+  app.add_flag("--random-effects", v.random_effects, "add a random mix of effects (none, one or several) from the seed");
   app.add_option("--maxwell-tau", o.effects.maxwell_tau_s, "time constant of the rate_dependence Maxwell arm (s)")
       ->capture_default_str();
   app.add_option("--hysteresis-transition", o.effects.hysteresis_transition_m_s,
                  "v_h of hysteresis_elastic's tanh switch (m/s)")
       ->capture_default_str();
-  app.add_flag("--drift-whole-record,!--drift-from-trigger", drift_whole,
+  app.add_flag("--drift-whole-record,!--drift-from-trigger", v.drift_whole,
                "baseline_drift ramps from the first sample (else from the trigger)");
+}
+
+// Options for the trials: velocities, video frames, gaps, force samples and noise.
+void add_trial_options(CLI::App& app, CliValues& v, dropfit::synth::SynthOptions& o) {
   app.add_option("--velocities", o.impact_velocities_m_s, "impact velocities, one trial each (m/s)")
       ->capture_default_str();
   app.add_option("--frames", o.n_frames, "video frames per trial")->capture_default_str();
   app.add_option("--trigger-frame", o.trigger_frame, "0-based frame at the force trigger")->capture_default_str();
-  app.add_option("--window", window, "digitised window FROM TO (s about contact; NaN outside)")
+  app.add_option("--window", v.window, "digitised window FROM TO (s about contact; NaN outside)")
       ->expected(2)
       ->capture_default_str();
   app.add_option("--random-gaps", o.random_gaps_per_trial, "random 1..--gap-max-frames gaps per trial")
@@ -193,14 +208,18 @@ int main(int argc, char** argv) {
                  "calibration pixel noise SD (px; negative = --pixel-noise)")
       ->capture_default_str();
   app.add_option("--channel-noise", o.channel_noise_n, "force channel noise SD (N)")->capture_default_str();
-  app.add_option("--mat-markers", mat_markers, "surface (follow the mat top under the impactor) or dish (top layer x w)")
+}
+
+// Options for the markers, impact point and tilt, and the explicit gaps.
+void add_marker_options(CLI::App& app, CliValues& v, dropfit::synth::SynthOptions& o) {
+  app.add_option("--mat-markers", v.mat_markers, "surface (follow the mat top under the impactor) or dish (top layer x w)")
       ->check(CLI::IsMember({"surface", "dish"}))
       ->capture_default_str();
   app.add_option("--mat-marker-radius", o.mat_marker_min_radius_m, "dish markers: least distance from the centre (m)")
       ->capture_default_str();
   app.add_option("--mat-marker-radius-max", o.mat_marker_max_radius_m, "dish markers: largest distance (m)")
       ->capture_default_str();
-  app.add_option("--base-markers", base_markers, "front-back or corners (the face's diagonal corners)")
+  app.add_option("--base-markers", v.base_markers, "front-back or corners (the face's diagonal corners)")
       ->check(CLI::IsMember({"front-back", "corners"}))
       ->capture_default_str();
   app.add_option("--base-marker-height", o.base_marker_height_m, "base markers above the face (m)")
@@ -214,45 +233,71 @@ int main(int argc, char** argv) {
   app.add_flag("--catch-at-apex,!--free-rebound", o.catch_at_apex,
                "the impactor is caught at the top of its rebound (else it may land again)")
       ->capture_default_str();
-  app.add_option("--gap", gaps, "hide a marker: TRIAL:POINT:CAMERA:FIRST:COUNT (1-based trial and camera, 0 = all)");
+  app.add_option("--gap", v.gaps, "hide a marker: TRIAL:POINT:CAMERA:FIRST:COUNT (1-based trial and camera, 0 = all)");
+}
+
+// Applies the parsed CLI values to the options; throws dropfit::Error.
+void apply_cli_values(const CliValues& v, dropfit::synth::SynthOptions& o) {
+  o.model = static_cast<dropfit::synth::ModelKind>(v.model);
+  if (!v.params.empty()) {
+    if (o.use_default_params) o.params = dropfit::synth::default_mat_params(o.model, o.layers);
+    o.use_default_params = false;
+    for (const std::string& p : v.params) parse_param(o.params, p);
+  }
+  if (v.random_effects) dropfit::synth::add_random_effects(o, o.seed);
+  for (const std::string& e : v.effects) parse_effect(o.effects, e);
+  o.effects.baseline_drift_whole_record = v.drift_whole;
+  for (const std::string& g : v.gaps) o.gaps.push_back(parse_gap(g));
+  o.mat_marker_motion =
+      v.mat_markers == "dish" ? dropfit::synth::MatMarkerMotion::Dish : dropfit::synth::MatMarkerMotion::FollowSurface;
+  o.base_marker_layout = v.base_markers == "corners" ? dropfit::synth::BaseMarkerLayout::DiagonalCorners
+                                                   : dropfit::synth::BaseMarkerLayout::FrontBack;
+  o.digitised_from_s = v.window[0];
+  o.digitised_to_s = v.window[1];
+
+}
+
+// Refuses a non-empty output folder and a truth file inside it; throws dropfit::Error.
+void check_output_paths(const std::string& out_dir, const std::string& truth_path) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (fs::exists(out_dir, ec) && !(fs::is_directory(out_dir, ec) && fs::is_empty(out_dir, ec)))
+    throw dropfit::Error(fmt::format("{} exists and is not an empty folder; remove it first", out_dir));
+  const fs::path truth_abs = fs::absolute(truth_path).lexically_normal();
+  const fs::path out_abs = fs::absolute(out_dir).lexically_normal();
+  const auto rel = truth_abs.lexically_relative(out_abs);
+  if (!rel.empty() && *rel.begin() != "..")
+    throw dropfit::Error("--truth must lie outside the session folder (it names the injected effects)");
+
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using dropfit::synth::SynthOptions;
+  SynthOptions o;
+  CliValues v;
+  if (!preset_options(argc, argv, v.world, o)) return 1;
+  init_cli_values(o, v);
+
+  CLI::App app{"dropfit-synth: a synthetic drop-test session with known truth"};
+  add_run_options(app, v, o);
+  add_trial_options(app, v, o);
+  add_marker_options(app, v, o);
   CLI11_PARSE(app, argc, argv);
 
   try {
-    o.model = static_cast<dropfit::synth::ModelKind>(model);
-    if (!params.empty()) {
-      if (o.use_default_params) o.params = dropfit::synth::default_mat_params(o.model, o.layers);
-      o.use_default_params = false;
-      for (const std::string& p : params) parse_param(o.params, p);
-    }
-    if (random_effects) dropfit::synth::add_random_effects(o, o.seed);
-    for (const std::string& e : effects) parse_effect(o.effects, e);
-    o.effects.baseline_drift_whole_record = drift_whole;
-    for (const std::string& g : gaps) o.gaps.push_back(parse_gap(g));
-    o.mat_marker_motion =
-        mat_markers == "dish" ? dropfit::synth::MatMarkerMotion::Dish : dropfit::synth::MatMarkerMotion::FollowSurface;
-    o.base_marker_layout = base_markers == "corners" ? dropfit::synth::BaseMarkerLayout::DiagonalCorners
-                                                     : dropfit::synth::BaseMarkerLayout::FrontBack;
-    o.digitised_from_s = window[0];
-    o.digitised_to_s = window[1];
-
-    std::error_code ec;
-    if (fs::exists(out_dir, ec) && !(fs::is_directory(out_dir, ec) && fs::is_empty(out_dir, ec)))
-      throw dropfit::Error(fmt::format("{} exists and is not an empty folder; remove it first", out_dir));
-    const fs::path truth_abs = fs::absolute(truth_path).lexically_normal();
-    const fs::path out_abs = fs::absolute(out_dir).lexically_normal();
-    const auto rel = truth_abs.lexically_relative(out_abs);
-    if (!rel.empty() && *rel.begin() != "..")
-      throw dropfit::Error("--truth must lie outside the session folder (it names the injected effects)");
-
+    apply_cli_values(v, o);
+    check_output_paths(v.out_dir, v.truth_path);
     dropfit::synth::SyntheticSession s = dropfit::synth::make_session(o);
-    s.session.root = out_dir;
-    dropfit::capture::write_session(out_dir, s.session);
-    dropfit::synth::write_truth_json(truth_path, s.truth);
+    s.session.root = v.out_dir;
+    dropfit::capture::write_session(v.out_dir, s.session);
+    dropfit::synth::write_truth_json(v.truth_path, s.truth);
     std::vector<std::string> names;
     for (const auto& e : s.truth.effects) names.push_back(e.name);
-    fmt::print("wrote {} ({} world, {} trials, model{}, effects: {}) and {}\n", out_dir, o.world,
-               s.session.trials.size(), model, names.empty() ? "none" : fmt::format("{}", fmt::join(names, " ")),
-               truth_path);
+    fmt::print("wrote {} ({} world, {} trials, model{}, effects: {}) and {}\n", v.out_dir, o.world,
+               s.session.trials.size(), v.model, names.empty() ? "none" : fmt::format("{}", fmt::join(names, " ")),
+               v.truth_path);
   } catch (const std::exception& e) {
     fmt::print(stderr, "dropfit-synth: error: {}\n", e.what());
     return 1;
