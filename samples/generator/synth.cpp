@@ -533,18 +533,13 @@ Eigen::Vector2d project_px(const TrueCamera& camera, const Eigen::Vector3d& lab_
 
 // ---- The session --------------------------------------------------------------
 
-SyntheticSession make_session(const SynthOptions& o) {
-  validate(o);
+namespace {
+
+constexpr double kTriggerSearch_s = 0.15;  // longest contact-to-trigger delay allowed
+
+// The true mat parameters with the mat effects applied; notes each effect in the truth.
+MatParams apply_mat_effects(const SynthOptions& o, SynthTruth& truth) {
   const Effects& fx = o.effects;
-  SyntheticSession out;
-  Session& session = out.session;
-  SynthTruth& truth = out.truth;
-
-  double mat_top_m = 0.0;
-  for (const LayerSpec& l : o.layers) mat_top_m += l.thickness_m;
-  const double g = o.gravity_m_s2;
-
-  // -- Mat physics with the mat effects.
   MatParams params = o.use_default_params ? default_mat_params(o.model, o.layers) : o.params;
   if (fx.k1_cubic_n_m3 != 0.0) {
     params.k1_cubic_n_m3 = fx.k1_cubic_n_m3;
@@ -586,11 +581,20 @@ SyntheticSession make_session(const SynthOptions& o) {
                              fmt::format("true m1 = {:.6g} kg, m2 = {:.6g} kg (declared layers unchanged, total kept)",
                                          params.m1_kg, params.m2_kg)});
   }
+  return params;
+}
 
-  // -- Marker layout: base markers in the impactor's frame (face centre
-  // origin, X front, Z up), mat markers' lab x, y.
-  const double h_base = o.base_marker_height_m;
+// Base markers in the impactor's frame (face centre origin, X front, Z up) and mat markers' lab x, y.
+struct MarkerLayout {
   Eigen::Vector3d base_offset[2];
+  Eigen::Vector2d mat_xy[4];
+};
+
+// Places the base and mat markers and records them in the truth.
+MarkerLayout place_markers(const SynthOptions& o, SynthTruth& truth) {
+  const double h_base = o.base_marker_height_m;
+  MarkerLayout layout;
+  Eigen::Vector3d(&base_offset)[2] = layout.base_offset;
   if (o.base_marker_layout == BaseMarkerLayout::DiagonalCorners) {
     const double ax = 0.5 * o.footprint_m.x(), ay = 0.5 * o.footprint_m.y();
     base_offset[0] = {ax, ay, h_base};
@@ -599,7 +603,7 @@ SyntheticSession make_session(const SynthOptions& o) {
     base_offset[0] = {o.base_marker_spacing_m, 0.0, h_base};
     base_offset[1] = {-o.base_marker_spacing_m, 0.0, h_base};
   }
-  Eigen::Vector2d mat_xy[4];
+  Eigen::Vector2d(&mat_xy)[4] = layout.mat_xy;
   if (o.mat_marker_motion == MatMarkerMotion::Dish) {
     Rng lay(o.seed, kStreamLayout);
     const Eigen::Vector2d dirs[4] = {{0.0, 1.0}, {0.0, -1.0}, {1.0, 0.0}, {-1.0, 0.0}};
@@ -617,8 +621,15 @@ SyntheticSession make_session(const SynthOptions& o) {
   }
   truth.base_markers_impactor_m = {base_offset[0], base_offset[1]};
   truth.mat_markers_xy_m.assign(std::begin(mat_xy), std::end(mat_xy));
+  return layout;
+}
 
-  // -- Cameras and calibration.
+// The true cameras, with the lens_distortion effect (k1 from its pixel size when given).
+void make_true_cameras(const SynthOptions& o, double mat_top_m, const MarkerLayout& layout, SynthTruth& truth) {
+  const Effects& fx = o.effects;
+  const double h_base = o.base_marker_height_m;
+  const Eigen::Vector3d(&base_offset)[2] = layout.base_offset;
+  const Eigen::Vector2d(&mat_xy)[4] = layout.mat_xy;
   std::vector<double> distortion;
   truth.cameras = make_cameras(o, mat_top_m, {});
   double k1_lens = fx.lens_distortion_k1;
@@ -652,8 +663,12 @@ SyntheticSession make_session(const SynthOptions& o) {
                                        fx.lens_distortion_px)
                          : std::string())});
   }
-  const int n_cam = static_cast<int>(truth.cameras.size());
+}
 
+// The calibration frame and its noisy images, with the outlier_marker and outlier_swap effects.
+void make_calibration(const SynthOptions& o, double mat_top_m, SynthTruth& truth, Session& session) {
+  const Effects& fx = o.effects;
+  const int n_cam = static_cast<int>(truth.cameras.size());
   session.frame = calibration_layout(o, mat_top_m);
   {
     Rng noise(o.seed, kStreamCalibrationNoise);
@@ -736,8 +751,11 @@ SyntheticSession make_session(const SynthOptions& o) {
       session.images.push_back(image);
     }
   }
+}
 
-  // -- Manifest.
+// The session manifest: impactor, mat, video and force plate.
+void fill_manifest(const SynthOptions& o, double mat_top_m, const SynthTruth& truth, Session& session) {
+  const double g = o.gravity_m_s2;
   Manifest& m = session.manifest;
   m.name = fmt::format("synthetic session (dropfit-synth, seed {})", o.seed);
   m.gravity_m_s2 = g;
@@ -762,7 +780,11 @@ SyntheticSession make_session(const SynthOptions& o) {
   m.forceplate.b_m = o.plate_b_m;
   m.forceplate.az0_m = o.plate_az0_m;
   m.forceplate.mat_top_z_m = mat_top_m;
+}
 
+// Notes the sync and force-plate effects (time_offset, baseline_drift, force_scale) in the truth.
+void note_sync_and_plate_effects(const SynthOptions& o, SynthTruth& truth) {
+  const Effects& fx = o.effects;
   const double offset_s = fx.time_offset_ms * 1e-3;
   if (fx.time_offset_ms != 0.0)
     truth.effects.push_back({"sync", "time_offset", fx.time_offset_ms, "ms",
@@ -777,6 +799,396 @@ SyntheticSession make_session(const SynthOptions& o) {
   if (fx.force_scale != 1.0)
     truth.effects.push_back({"forceplate", "force_scale", fx.force_scale, "gain",
                              fmt::format("every channel reads {} times the true load", fx.force_scale)});
+}
+
+// What every trial shares: options, true parameters, markers, cameras and record sizes.
+struct TrialSetup {
+  const SynthOptions& o;
+  const MatParams& params;
+  const MarkerLayout& layout;
+  const std::vector<TrueCamera>& cameras;
+  const Manifest& m;
+  double g, mat_top_m, offset_s, fs, t_end_force, t_end_video;
+  int n, npre, n_pts, n_cam;
+};
+
+// The impactor's tilt, impact point, shear share and channel offsets; returns the face slopes.
+Eigen::Vector2d draw_trial_pose(const SynthOptions& o, std::size_t ti, TrialTruth& tt) {
+  Rng r(o.seed, kStreamTrial + ti);
+  const double tilt_abs_deg = std::abs(o.tilt_mean_deg + o.tilt_sd_deg * r.normal());
+  const double tilt_sign = r.uniform() < 0.5 ? -1.0 : 1.0;
+  const double tilt_rad = tilt_sign * tilt_abs_deg * kDeg;
+  tt.impact_point_m = Eigen::Vector2d(r.normal(), r.normal()) * o.impact_point_sd_m;
+  tt.cop_m = tt.impact_point_m;
+  tt.shear_fraction = Eigen::Vector2d(2.0 * r.uniform() - 1.0, 2.0 * r.uniform() - 1.0) * o.shear_fraction_max;
+  for (int c = 0; c < 8; ++c) tt.channel_offsets_n(c) = o.channel_offset_sd_n * r.normal();
+  // Face slopes (d travel / dx, d travel / dy): about lab Y, or about a
+  // random horizontal axis (its own stream: the classic draws stay).
+  Eigen::Vector2d face_slopes(std::tan(tilt_rad), 0.0);
+  tt.tilt_axis_deg = 90.0;
+  if (o.tilt_random_axis) {
+    Rng ax(o.seed, kStreamTrial + 500 + ti);
+    const double phi = 2.0 * kPi * ax.uniform();  // direction of steepest descent of the face
+    face_slopes = std::tan(tilt_abs_deg * kDeg) * Eigen::Vector2d(std::cos(phi), std::sin(phi));
+    tt.tilt_axis_deg = std::remainder(phi / kDeg + 90.0, 360.0);
+  }
+  tt.tilt_about_y_deg = std::atan(face_slopes.x()) / kDeg;
+  return face_slopes;
+}
+
+// The chain simulation from first contact (the generator's own physics.h) and the rebound speed.
+ChainSimulation simulate_trial_impact(const TrialSetup& setup, double v, TrialTruth& tt) {
+  const SynthOptions& o = setup.o;
+  const MatParams& params = setup.params;
+  const double g = setup.g, fs = setup.fs, t_end_force = setup.t_end_force, t_end_video = setup.t_end_video;
+  // -- Physics from first contact: the generator's own (physics.h).
+  ChainImpact impact;
+  impact.mass_kg = o.impactor_mass_kg;
+  impact.velocity_m_s = v;
+  impact.gravity_m_s2 = g;
+  impact.duration_s = std::max(t_end_force, t_end_video) + kTriggerSearch_s + 2.0 / fs;
+  impact.output_dt_s = kSimDt;
+  impact.catch_at_apex = o.catch_at_apex;
+  const ChainSimulation sim = simulate_chain(o.model, params, impact);
+  require(sim.grf_n.size() >= 2, "simulation returned no samples");
+  tt.impact_velocity_after_m_s = kNaN;
+  if (std::isfinite(sim.separation_s))
+    tt.impact_velocity_after_m_s = -interp(sim.impactor_v_m_s, sim.separation_s, kSimDt);
+  return sim;
+}
+
+// Travels (m, down) of the face, the mat surface and the layers at time tau from contact.
+struct TrialMotion {
+  const ChainSimulation& sim;
+  double v, g;
+  bool has_layer;
+
+  // The face: the simulation after contact, free fall from the release before.
+  double face_travel(double tau) const {
+    const double d0 = 0.0;
+    if (tau >= 0.0) return interp(sim.impactor_m, tau, kSimDt);
+    const double tau_release = -v / g;  // held at rest before the release
+    const double t = std::max(tau, tau_release);
+    return d0 + v * t + 0.5 * g * t * t;
+  }
+  // The mat surface (element 1's top).
+  double surface_travel(double tau) const { return tau >= 0.0 ? interp(sim.surface_m, tau, kSimDt) : 0.0; }
+  // A layer's travel record y.
+  double layer_travel(const Eigen::VectorXd& y, double tau) const { return tau >= 0.0 ? interp(y, tau, kSimDt) : 0.0; }
+  // What the mat markers follow: the top layer (or, with no layer mass, element 1's top).
+  double top_layer_travel(double tau) const {
+    return has_layer ? layer_travel(sim.layer1_m, tau) : surface_travel(tau);
+  }
+};
+
+// Contact summary (first contact up to separation): peak force, deformation, travel and tilt.
+void summarise_contact(const ChainSimulation& sim, const Eigen::Vector2d& face_slopes, TrialTruth& tt) {
+  const Eigen::Index n_sim = sim.grf_n.size();
+  Eigen::Index end = n_sim;
+  if (std::isfinite(sim.separation_s))
+    end = std::min<Eigen::Index>(n_sim, static_cast<Eigen::Index>(std::ceil(sim.separation_s / kSimDt)) + 1);
+  Eigen::Index k_peak = 0;
+  tt.peak_force_n = sim.grf_n.head(end).maxCoeff(&k_peak);
+  tt.time_to_peak_s = static_cast<double>(k_peak) * kSimDt;
+  tt.max_deformation_m = sim.impactor_m.head(end).maxCoeff();
+  tt.max_surface_travel_m = sim.surface_m.head(end).maxCoeff();
+  double dev = 0.0;
+  for (Eigen::Index k = 0; k < end; ++k) {
+    const Eigen::Vector2d sl = face_slopes;
+    dev = std::max(dev, deviation_deg(sl.x(), sl.y()));
+  }
+  tt.tilt_deg = dev;
+}
+
+// The time from contact to the noise-free trigger crossing (s); throws when the force never reaches it.
+double contact_to_trigger_s(const SynthOptions& o, const ChainSimulation& sim, double fs, const std::string& id) {
+  const Effects& fx = o.effects;
+  // -- Trigger: the plate's zeroed Fz (gain, drift and noise included)
+  // first reaches the threshold at sample npre (t = 0); contact sits a
+  // random sub-sample phase before the noise-free crossing.
+  const double scale = fx.force_scale;
+  double tau25 = -1.0;
+  for (Eigen::Index k = 0; k < sim.grf_n.size(); ++k)
+    if (scale * sim.grf_n(k) >= o.trigger_threshold_n) {
+      if (k == 0) {
+        tau25 = 0.0;
+      } else {
+        const double a = scale * sim.grf_n(k - 1), b = scale * sim.grf_n(k);
+        tau25 = (static_cast<double>(k - 1) + (o.trigger_threshold_n - a) / (b - a)) * kSimDt;
+      }
+      break;
+    }
+  require(tau25 >= 0.0 && tau25 + 1.0 / fs < kTriggerSearch_s,
+          fmt::format("trial {}: the force never reaches the {} N trigger within {} s of contact", id,
+                      o.trigger_threshold_n, kTriggerSearch_s));
+  return tau25;
+}
+
+// The force record: sample times, true GRF and the eight channels with the plate effects.
+struct ForceRecord {
+  Eigen::VectorXd t_s, grf;
+  Eigen::MatrixXd data;
+};
+
+// Records the plate's channels, placing contact so the trigger fires at sample npre.
+ForceRecord record_force(const TrialSetup& setup, std::size_t ti, const ChainSimulation& sim, double tau25,
+                         TrialTruth& tt) {
+  const SynthOptions& o = setup.o;
+  const Effects& fx = o.effects;
+  const int n = setup.n, npre = setup.npre;
+  const double fs = setup.fs;
+  const double scale = fx.force_scale;
+  ForceRecord rec;
+  Eigen::VectorXd& t_s = rec.t_s;
+  Eigen::VectorXd& grf = rec.grf;
+  Eigen::MatrixXd& data = rec.data;
+  Rng fr(o.seed, kStreamForceNoise + ti);
+  t_s.resize(n);
+  grf.resize(n);
+  data.resize(n, 8);
+  bool triggered = false;
+  for (int attempt = 0; attempt < 200 && !triggered; ++attempt) {
+    const double phase = fr.uniform();
+    tt.contact_time_s = -(tau25 + phase / fs);
+    for (int j = 0; j < n; ++j) {
+      const double t = six_decimals(static_cast<double>(j - npre) / fs);
+      t_s(j) = t;
+      const double tau = t - tt.contact_time_s;
+      grf(j) = tau < 0.0 ? 0.0 : interp(sim.grf_n, tau, kSimDt);
+      const double fz = scale * grf(j);
+      const Eigen::Vector3d f(tt.shear_fraction.x() * fz, tt.shear_fraction.y() * fz, fz);
+      Eigen::Matrix<double, 8, 1> ch = kistler_channels(f, tt.cop_m, o.plate_a_m, o.plate_b_m, o.plate_az0_m);
+      double drift = 0.0;
+      if (fx.baseline_drift_whole_record)
+        drift = fx.baseline_drift_n_s * (t - t_s(0));
+      else if (t > 0.0)
+        drift = fx.baseline_drift_n_s * t;
+      ch.tail<4>().array() += 0.25 * drift;
+      for (int c = 0; c < 8; ++c) ch(c) += o.channel_noise_n * fr.normal();
+      data.row(j) = ch.transpose();
+    }
+    // The zeroed Fz as the plate's trigger sees it.
+    int first = -1;
+    for (int j = 0; j < n && first < 0; ++j)
+      if (data.row(j).tail<4>().sum() >= o.trigger_threshold_n) first = j;
+    triggered = first == npre;
+  }
+  require(triggered, fmt::format("trial {}: cannot place the trigger at sample {} with {} N channel noise", tt.id,
+                                 npre, o.channel_noise_n));
+  for (int j = 0; j < n; ++j)
+    for (int c = 0; c < 8; ++c) data(j, c) = six_decimals(data(j, c) + tt.channel_offsets_n(c));
+  tt.separation_time_s = std::isfinite(sim.separation_s) ? tt.contact_time_s + sim.separation_s : kNaN;
+  return rec;
+}
+
+// The truth's travels and noise-free plate Fz at the force samples.
+void fill_force_truth(const TrialSetup& setup, const ChainSimulation& sim, const TrialMotion& motion,
+                      const ForceRecord& rec, TrialTruth& tt) {
+  const Effects& fx = setup.o.effects;
+  const int n = setup.n;
+  const double scale = fx.force_scale;
+  const Eigen::VectorXd& t_s = rec.t_s;
+  const Eigen::VectorXd& grf = rec.grf;
+  tt.t_s = t_s;
+  tt.grf_n = grf;
+  tt.impactor_travel_m.resize(n);
+  tt.surface_travel_m.resize(n);
+  tt.layer1_travel_m.resize(n);
+  tt.layer2_travel_m.resize(n);
+  tt.plate_fz_noise_free_n.resize(n);
+  for (int j = 0; j < n; ++j) {
+    const double tau = t_s(j) - tt.contact_time_s;
+    tt.impactor_travel_m(j) = motion.face_travel(tau);
+    tt.surface_travel_m(j) = motion.surface_travel(tau);
+    tt.layer1_travel_m(j) = motion.layer_travel(sim.layer1_m, tau);
+    tt.layer2_travel_m(j) = motion.layer_travel(sim.layer2_m, tau);
+    double drift = 0.0;
+    if (fx.baseline_drift_whole_record)
+      drift = fx.baseline_drift_n_s * (t_s(j) - t_s(0));
+    else if (t_s(j) > 0.0)
+      drift = fx.baseline_drift_n_s * t_s(j);
+    tt.plate_fz_noise_free_n(j) = scale * grf(j) + drift;
+  }
+}
+
+// Renders the markers into both cameras over the digitised window (pixel noise, visibility).
+MarkerTracks2D render_markers(const TrialSetup& setup, std::size_t ti, const TrialMotion& motion,
+                              const Eigen::Vector2d& face_slopes, TrialTruth& tt) {
+  const SynthOptions& o = setup.o;
+  const Manifest& m = setup.m;
+  const int n_pts = setup.n_pts, n_cam = setup.n_cam;
+  const double offset_s = setup.offset_s, mat_top_m = setup.mat_top_m;
+  const Eigen::Vector3d(&base_offset)[2] = setup.layout.base_offset;
+  const Eigen::Vector2d(&mat_xy)[4] = setup.layout.mat_xy;
+  // -- Video.
+  Rng pr(o.seed, kStreamPixelNoise + ti);
+  MarkerTracks2D tracks;
+  tracks.points = m.video.points;
+  tracks.cameras = m.video.cameras;
+  tracks.uv_px.setConstant(o.n_frames, 2 * n_pts * n_cam, kNaN);
+  tt.frame_force_time_s.resize(o.n_frames);
+  tt.markers_lab_m.resize(o.n_frames, 3 * n_pts);
+  tt.digitised_first_frame = -1;
+  tt.digitised_last_frame = -1;
+  for (int f = 0; f < o.n_frames; ++f) {
+    const double tf = static_cast<double>(f - o.trigger_frame) / o.frame_rate_hz - offset_s;
+    tt.frame_force_time_s(f) = tf;
+    const double tau = tf - tt.contact_time_s;
+    const bool digitised = tau >= o.digitised_from_s && tau <= o.digitised_to_s;
+    if (digitised) {
+      if (tt.digitised_first_frame < 0) tt.digitised_first_frame = f;
+      tt.digitised_last_frame = f;
+    }
+    const double d = motion.face_travel(tau);
+    const double st = motion.surface_travel(tau);
+    const Eigen::Vector2d sl = face_slopes;
+    const Eigen::Matrix3d rot = impactor_rotation(sl.x(), sl.y());
+    const Eigen::Vector3d face(tt.impact_point_m.x(), tt.impact_point_m.y(), mat_top_m - d);
+    std::vector<Eigen::Vector3d> pts;
+    pts.push_back(face + rot * base_offset[0]);
+    pts.push_back(face + rot * base_offset[1]);
+    const double top = motion.top_layer_travel(tau);
+    for (int k = 0; k < 4; ++k) {
+      const double travel = o.mat_marker_motion == MatMarkerMotion::Dish ? tt.dish_factors[k] * top : st;
+      pts.emplace_back(mat_xy[k].x(), mat_xy[k].y(), mat_top_m - travel);
+    }
+    for (int p = 0; p < n_pts; ++p) {
+      tt.markers_lab_m.row(f).segment<3>(3 * p) = pts[p].transpose();
+      for (int c = 0; c < n_cam; ++c) {
+        const Eigen::Vector2d e(pr.normal(), pr.normal());  // drawn always: visibility changes nothing else
+        double depth = 0.0;
+        pinhole_px(setup.cameras[c], pts[p], &depth);
+        const Eigen::Vector2d clean = project_px(setup.cameras[c], pts[p]);
+        if (!digitised || !in_image(setup.cameras[c], clean, depth)) continue;
+        const Eigen::Vector2d uv = clean + o.pixel_noise_px * e;
+        const int col = tracks.column(p, c);
+        tracks.uv_px(f, col) = six_decimals(uv.x());
+        tracks.uv_px(f, col + 1) = six_decimals(uv.y());
+      }
+    }
+  }
+  require(tt.digitised_first_frame >= 0,
+          fmt::format("trial {}: no video frame lies in the digitised window", tt.id));
+  return tracks;
+}
+
+// Hides the requested and the random gaps (inside the digitised window) in the tracks.
+void apply_gaps(const TrialSetup& setup, std::size_t ti, MarkerTracks2D& tracks, TrialTruth& tt) {
+  const SynthOptions& o = setup.o;
+  const Manifest& m = setup.m;
+  const int n_pts = setup.n_pts, n_cam = setup.n_cam;
+  // Random gaps inside the digitised window (their own stream).
+  std::vector<Gap> trial_gaps = o.gaps;
+  {
+    Rng gr(o.seed, kStreamGaps + ti);
+    const int span = tt.digitised_last_frame - tt.digitised_first_frame + 1;
+    for (int k = 0; k < o.random_gaps_per_trial && span > 2; ++k) {
+      Gap gap;
+      gap.trial = static_cast<int>(ti);
+      gap.point = m.video.points[std::min<std::size_t>(m.video.points.size() - 1,
+                                                       static_cast<std::size_t>(gr.uniform() * n_pts))];
+      gap.n_frames = 1 + std::min(o.gap_max_frames - 1, static_cast<int>(gr.uniform() * o.gap_max_frames));
+      gap.first_frame =
+          tt.digitised_first_frame + std::min(span - 1, static_cast<int>(gr.uniform() * std::max(1, span - gap.n_frames)));
+      gap.camera = gr.uniform() < o.gap_both_cameras_fraction
+                       ? -1
+                       : std::min(n_cam - 1, static_cast<int>(gr.uniform() * n_cam));
+      trial_gaps.push_back(gap);
+    }
+  }
+  for (const Gap& gap : trial_gaps) {
+    if (gap.trial != static_cast<int>(ti)) continue;
+    const auto it = std::find(tracks.points.begin(), tracks.points.end(), gap.point);
+    require(it != tracks.points.end(), fmt::format("gap names unknown point '{}'", gap.point));
+    require(gap.camera >= -1 && gap.camera < n_cam, fmt::format("gap names camera {} of {}", gap.camera, n_cam));
+    const int p = static_cast<int>(it - tracks.points.begin());
+    for (int f = gap.first_frame; f < std::min(o.n_frames, gap.first_frame + gap.n_frames); ++f)
+      for (int c = 0; c < n_cam; ++c)
+        if (gap.camera < 0 || gap.camera == c) {
+          tracks.uv_px(f, tracks.column(p, c)) = kNaN;
+          tracks.uv_px(f, tracks.column(p, c) + 1) = kNaN;
+        }
+    tt.gaps.push_back(gap);
+  }
+}
+
+// One simulated trial: its recording and its truth.
+struct SimulatedTrial {
+  TrialRecording trial;
+  TrialTruth tt;
+};
+
+// Simulates trial ti: pose, physics, force record, video and gaps.
+SimulatedTrial simulate_trial(const TrialSetup& setup, std::size_t ti) {
+  const SynthOptions& o = setup.o;
+  const MatParams& params = setup.params;
+  const double g = setup.g, offset_s = setup.offset_s, fs = setup.fs;
+  const int npre = setup.npre;
+  const Eigen::Vector2d(&mat_xy)[4] = setup.layout.mat_xy;
+  SimulatedTrial out;
+  TrialTruth& tt = out.tt;
+  const double v = o.impact_velocities_m_s[ti];
+  tt.id = fmt::format("trial{}", ti + 1);
+  tt.impact_velocity_m_s = v;
+  tt.model = o.model;
+  tt.params = params;
+  tt.video_offset_s = offset_s;
+  tt.trigger_index = npre;
+  tt.drop_height_m = v * v / (2.0 * g);
+
+  const Eigen::Vector2d face_slopes = draw_trial_pose(o, ti, tt);
+  const ChainSimulation sim = simulate_trial_impact(setup, v, tt);
+  const TrialMotion motion{sim, v, g, o.model != ModelKind::Model1};
+  tt.dish_factors.clear();
+  for (const Eigen::Vector2d& xy : mat_xy) {
+    const double dist = (xy - tt.impact_point_m).norm();
+    tt.dish_factors.push_back(o.mat_marker_motion == MatMarkerMotion::Dish
+                                  ? std::exp(-std::pow((dist - o.dish_centre_m) / o.dish_width_m, 2))
+                                  : 1.0);
+  }
+  summarise_contact(sim, face_slopes, tt);
+  const double tau25 = contact_to_trigger_s(o, sim, fs, tt.id);
+  const ForceRecord rec = record_force(setup, ti, sim, tau25, tt);
+  fill_force_truth(setup, sim, motion, rec, tt);
+  MarkerTracks2D tracks = render_markers(setup, ti, motion, face_slopes, tt);
+  apply_gaps(setup, ti, tracks, tt);
+  const Eigen::VectorXd& t_s = rec.t_s;
+  const Eigen::MatrixXd& data = rec.data;
+
+  TrialRecording& trial = out.trial;
+  trial.spec = {tt.id, fmt::format("trials/{}", tt.id)};
+  trial.tracks = std::move(tracks);
+  trial.force.layout = ForceLayout::EightChannel;
+  trial.force.sample_rate_hz = fs;
+  trial.force.pretrigger_samples = npre;
+  trial.force.trigger = fmt::format("Fz > {} N", o.trigger_threshold_n);
+  trial.force.t_s = t_s;
+  trial.force.data = data;
+  return out;
+}
+
+}  // namespace
+
+SyntheticSession make_session(const SynthOptions& o) {
+  validate(o);
+  const Effects& fx = o.effects;
+  SyntheticSession out;
+  Session& session = out.session;
+  SynthTruth& truth = out.truth;
+
+  double mat_top_m = 0.0;
+  for (const LayerSpec& l : o.layers) mat_top_m += l.thickness_m;
+  const double g = o.gravity_m_s2;
+
+  const MatParams params = apply_mat_effects(o, truth);
+  const MarkerLayout layout = place_markers(o, truth);
+  make_true_cameras(o, mat_top_m, layout, truth);
+  const int n_cam = static_cast<int>(truth.cameras.size());
+  make_calibration(o, mat_top_m, truth, session);
+  fill_manifest(o, mat_top_m, truth, session);
+  Manifest& m = session.manifest;
+  note_sync_and_plate_effects(o, truth);
+  const double offset_s = fx.time_offset_ms * 1e-3;
 
   const int n_pts = static_cast<int>(m.video.points.size());
 
@@ -785,7 +1197,6 @@ SyntheticSession make_session(const SynthOptions& o) {
   const double fs = o.force_rate_hz;
   const double t_end_force = (n - 1 - npre) / fs;
   const double t_end_video = (o.n_frames - 1 - o.trigger_frame) / o.frame_rate_hz - offset_s;
-  constexpr double kTriggerSearch_s = 0.15;  // longest contact-to-trigger delay allowed
 
   truth.seed = o.seed;
   truth.world = o.world;
@@ -796,262 +1207,13 @@ SyntheticSession make_session(const SynthOptions& o) {
   truth.pixel_noise_px = o.pixel_noise_px;
   truth.channel_noise_n = o.channel_noise_n;
 
+  const TrialSetup setup{o, params, layout, truth.cameras, m, g, mat_top_m, offset_s, fs, t_end_force, t_end_video,
+                         n, npre, n_pts, n_cam};
   for (std::size_t ti = 0; ti < o.impact_velocities_m_s.size(); ++ti) {
-    const double v = o.impact_velocities_m_s[ti];
-    TrialTruth tt;
-    tt.id = fmt::format("trial{}", ti + 1);
-    tt.impact_velocity_m_s = v;
-    tt.model = o.model;
-    tt.params = params;
-    tt.video_offset_s = offset_s;
-    tt.trigger_index = npre;
-    tt.drop_height_m = v * v / (2.0 * g);
-
-    Rng r(o.seed, kStreamTrial + ti);
-    const double tilt_abs_deg = std::abs(o.tilt_mean_deg + o.tilt_sd_deg * r.normal());
-    const double tilt_sign = r.uniform() < 0.5 ? -1.0 : 1.0;
-    const double tilt_rad = tilt_sign * tilt_abs_deg * kDeg;
-    tt.impact_point_m = Eigen::Vector2d(r.normal(), r.normal()) * o.impact_point_sd_m;
-    tt.cop_m = tt.impact_point_m;
-    tt.shear_fraction = Eigen::Vector2d(2.0 * r.uniform() - 1.0, 2.0 * r.uniform() - 1.0) * o.shear_fraction_max;
-    for (int c = 0; c < 8; ++c) tt.channel_offsets_n(c) = o.channel_offset_sd_n * r.normal();
-    // Face slopes (d travel / dx, d travel / dy): about lab Y, or about a
-    // random horizontal axis (its own stream: the classic draws stay).
-    Eigen::Vector2d face_slopes(std::tan(tilt_rad), 0.0);
-    tt.tilt_axis_deg = 90.0;
-    if (o.tilt_random_axis) {
-      Rng ax(o.seed, kStreamTrial + 500 + ti);
-      const double phi = 2.0 * kPi * ax.uniform();  // direction of steepest descent of the face
-      face_slopes = std::tan(tilt_abs_deg * kDeg) * Eigen::Vector2d(std::cos(phi), std::sin(phi));
-      tt.tilt_axis_deg = std::remainder(phi / kDeg + 90.0, 360.0);
-    }
-    tt.tilt_about_y_deg = std::atan(face_slopes.x()) / kDeg;
-
-    // -- Physics from first contact: the generator's own (physics.h).
-    ChainImpact impact;
-    impact.mass_kg = o.impactor_mass_kg;
-    impact.velocity_m_s = v;
-    impact.gravity_m_s2 = g;
-    impact.duration_s = std::max(t_end_force, t_end_video) + kTriggerSearch_s + 2.0 / fs;
-    impact.output_dt_s = kSimDt;
-    impact.catch_at_apex = o.catch_at_apex;
-    const ChainSimulation sim = simulate_chain(o.model, params, impact);
-    require(sim.grf_n.size() >= 2, "simulation returned no samples");
-    tt.impact_velocity_after_m_s = kNaN;
-    if (std::isfinite(sim.separation_s))
-      tt.impact_velocity_after_m_s = -interp(sim.impactor_v_m_s, sim.separation_s, kSimDt);
-    const double d0 = 0.0;
-    auto face_travel = [&](double tau) {
-      if (tau >= 0.0) return interp(sim.impactor_m, tau, kSimDt);
-      const double tau_release = -v / g;  // held at rest before the release
-      const double t = std::max(tau, tau_release);
-      return d0 + v * t + 0.5 * g * t * t;
-    };
-    auto surface_travel = [&](double tau) { return tau >= 0.0 ? interp(sim.surface_m, tau, kSimDt) : 0.0; };
-    auto layer_travel = [&](const Eigen::VectorXd& y, double tau) { return tau >= 0.0 ? interp(y, tau, kSimDt) : 0.0; };
-    const bool has_layer = o.model != ModelKind::Model1;
-    // What the mat markers follow: the top layer (or, with no layer mass, element 1's top).
-    auto top_layer_travel = [&](double tau) {
-      return has_layer ? layer_travel(sim.layer1_m, tau) : surface_travel(tau);
-    };
-    auto slopes = [&](double) -> Eigen::Vector2d { return face_slopes; };
-    tt.dish_factors.clear();
-    for (const Eigen::Vector2d& xy : mat_xy) {
-      const double dist = (xy - tt.impact_point_m).norm();
-      tt.dish_factors.push_back(o.mat_marker_motion == MatMarkerMotion::Dish
-                                    ? std::exp(-std::pow((dist - o.dish_centre_m) / o.dish_width_m, 2))
-                                    : 1.0);
-    }
-
-    // Contact summary (first contact up to separation).
-    {
-      const Eigen::Index n_sim = sim.grf_n.size();
-      Eigen::Index end = n_sim;
-      if (std::isfinite(sim.separation_s))
-        end = std::min<Eigen::Index>(n_sim, static_cast<Eigen::Index>(std::ceil(sim.separation_s / kSimDt)) + 1);
-      Eigen::Index k_peak = 0;
-      tt.peak_force_n = sim.grf_n.head(end).maxCoeff(&k_peak);
-      tt.time_to_peak_s = static_cast<double>(k_peak) * kSimDt;
-      tt.max_deformation_m = sim.impactor_m.head(end).maxCoeff();
-      tt.max_surface_travel_m = sim.surface_m.head(end).maxCoeff();
-      double dev = 0.0;
-      for (Eigen::Index k = 0; k < end; ++k) {
-        const Eigen::Vector2d sl = slopes(static_cast<double>(k) * kSimDt);
-        dev = std::max(dev, deviation_deg(sl.x(), sl.y()));
-      }
-      tt.tilt_deg = dev;
-    }
-
-    // -- Trigger: the plate's zeroed Fz (gain, drift and noise included)
-    // first reaches the threshold at sample npre (t = 0); contact sits a
-    // random sub-sample phase before the noise-free crossing.
-    const double scale = fx.force_scale;
-    double tau25 = -1.0;
-    for (Eigen::Index k = 0; k < sim.grf_n.size(); ++k)
-      if (scale * sim.grf_n(k) >= o.trigger_threshold_n) {
-        if (k == 0) {
-          tau25 = 0.0;
-        } else {
-          const double a = scale * sim.grf_n(k - 1), b = scale * sim.grf_n(k);
-          tau25 = (static_cast<double>(k - 1) + (o.trigger_threshold_n - a) / (b - a)) * kSimDt;
-        }
-        break;
-      }
-    require(tau25 >= 0.0 && tau25 + 1.0 / fs < kTriggerSearch_s,
-            fmt::format("trial {}: the force never reaches the {} N trigger within {} s of contact", tt.id,
-                        o.trigger_threshold_n, kTriggerSearch_s));
-
-    Rng fr(o.seed, kStreamForceNoise + ti);
-    Eigen::VectorXd t_s(n), grf(n);
-    Eigen::MatrixXd data(n, 8);
-    bool triggered = false;
-    for (int attempt = 0; attempt < 200 && !triggered; ++attempt) {
-      const double phase = fr.uniform();
-      tt.contact_time_s = -(tau25 + phase / fs);
-      for (int j = 0; j < n; ++j) {
-        const double t = six_decimals(static_cast<double>(j - npre) / fs);
-        t_s(j) = t;
-        const double tau = t - tt.contact_time_s;
-        grf(j) = tau < 0.0 ? 0.0 : interp(sim.grf_n, tau, kSimDt);
-        const double fz = scale * grf(j);
-        const Eigen::Vector3d f(tt.shear_fraction.x() * fz, tt.shear_fraction.y() * fz, fz);
-        Eigen::Matrix<double, 8, 1> ch = kistler_channels(f, tt.cop_m, o.plate_a_m, o.plate_b_m, o.plate_az0_m);
-        double drift = 0.0;
-        if (fx.baseline_drift_whole_record)
-          drift = fx.baseline_drift_n_s * (t - t_s(0));
-        else if (t > 0.0)
-          drift = fx.baseline_drift_n_s * t;
-        ch.tail<4>().array() += 0.25 * drift;
-        for (int c = 0; c < 8; ++c) ch(c) += o.channel_noise_n * fr.normal();
-        data.row(j) = ch.transpose();
-      }
-      // The zeroed Fz as the plate's trigger sees it.
-      int first = -1;
-      for (int j = 0; j < n && first < 0; ++j)
-        if (data.row(j).tail<4>().sum() >= o.trigger_threshold_n) first = j;
-      triggered = first == npre;
-    }
-    require(triggered, fmt::format("trial {}: cannot place the trigger at sample {} with {} N channel noise", tt.id,
-                                   npre, o.channel_noise_n));
-    for (int j = 0; j < n; ++j)
-      for (int c = 0; c < 8; ++c) data(j, c) = six_decimals(data(j, c) + tt.channel_offsets_n(c));
-    tt.separation_time_s = std::isfinite(sim.separation_s) ? tt.contact_time_s + sim.separation_s : kNaN;
-    tt.t_s = t_s;
-    tt.grf_n = grf;
-    tt.impactor_travel_m.resize(n);
-    tt.surface_travel_m.resize(n);
-    tt.layer1_travel_m.resize(n);
-    tt.layer2_travel_m.resize(n);
-    tt.plate_fz_noise_free_n.resize(n);
-    for (int j = 0; j < n; ++j) {
-      const double tau = t_s(j) - tt.contact_time_s;
-      tt.impactor_travel_m(j) = face_travel(tau);
-      tt.surface_travel_m(j) = surface_travel(tau);
-      tt.layer1_travel_m(j) = layer_travel(sim.layer1_m, tau);
-      tt.layer2_travel_m(j) = layer_travel(sim.layer2_m, tau);
-      double drift = 0.0;
-      if (fx.baseline_drift_whole_record)
-        drift = fx.baseline_drift_n_s * (t_s(j) - t_s(0));
-      else if (t_s(j) > 0.0)
-        drift = fx.baseline_drift_n_s * t_s(j);
-      tt.plate_fz_noise_free_n(j) = scale * grf(j) + drift;
-    }
-
-    // -- Video.
-    Rng pr(o.seed, kStreamPixelNoise + ti);
-    MarkerTracks2D tracks;
-    tracks.points = m.video.points;
-    tracks.cameras = m.video.cameras;
-    tracks.uv_px.setConstant(o.n_frames, 2 * n_pts * n_cam, kNaN);
-    tt.frame_force_time_s.resize(o.n_frames);
-    tt.markers_lab_m.resize(o.n_frames, 3 * n_pts);
-    tt.digitised_first_frame = -1;
-    tt.digitised_last_frame = -1;
-    for (int f = 0; f < o.n_frames; ++f) {
-      const double tf = static_cast<double>(f - o.trigger_frame) / o.frame_rate_hz - offset_s;
-      tt.frame_force_time_s(f) = tf;
-      const double tau = tf - tt.contact_time_s;
-      const bool digitised = tau >= o.digitised_from_s && tau <= o.digitised_to_s;
-      if (digitised) {
-        if (tt.digitised_first_frame < 0) tt.digitised_first_frame = f;
-        tt.digitised_last_frame = f;
-      }
-      const double d = face_travel(tau);
-      const double st = surface_travel(tau);
-      const Eigen::Vector2d sl = slopes(tau);
-      const Eigen::Matrix3d rot = impactor_rotation(sl.x(), sl.y());
-      const Eigen::Vector3d face(tt.impact_point_m.x(), tt.impact_point_m.y(), mat_top_m - d);
-      std::vector<Eigen::Vector3d> pts;
-      pts.push_back(face + rot * base_offset[0]);
-      pts.push_back(face + rot * base_offset[1]);
-      const double top = top_layer_travel(tau);
-      for (int k = 0; k < 4; ++k) {
-        const double travel = o.mat_marker_motion == MatMarkerMotion::Dish ? tt.dish_factors[k] * top : st;
-        pts.emplace_back(mat_xy[k].x(), mat_xy[k].y(), mat_top_m - travel);
-      }
-      for (int p = 0; p < n_pts; ++p) {
-        tt.markers_lab_m.row(f).segment<3>(3 * p) = pts[p].transpose();
-        for (int c = 0; c < n_cam; ++c) {
-          const Eigen::Vector2d e(pr.normal(), pr.normal());  // drawn always: visibility changes nothing else
-          double depth = 0.0;
-          pinhole_px(truth.cameras[c], pts[p], &depth);
-          const Eigen::Vector2d clean = project_px(truth.cameras[c], pts[p]);
-          if (!digitised || !in_image(truth.cameras[c], clean, depth)) continue;
-          const Eigen::Vector2d uv = clean + o.pixel_noise_px * e;
-          const int col = tracks.column(p, c);
-          tracks.uv_px(f, col) = six_decimals(uv.x());
-          tracks.uv_px(f, col + 1) = six_decimals(uv.y());
-        }
-      }
-    }
-    require(tt.digitised_first_frame >= 0,
-            fmt::format("trial {}: no video frame lies in the digitised window", tt.id));
-    // Random gaps inside the digitised window (their own stream).
-    std::vector<Gap> trial_gaps = o.gaps;
-    {
-      Rng gr(o.seed, kStreamGaps + ti);
-      const int span = tt.digitised_last_frame - tt.digitised_first_frame + 1;
-      for (int k = 0; k < o.random_gaps_per_trial && span > 2; ++k) {
-        Gap gap;
-        gap.trial = static_cast<int>(ti);
-        gap.point = m.video.points[std::min<std::size_t>(m.video.points.size() - 1,
-                                                         static_cast<std::size_t>(gr.uniform() * n_pts))];
-        gap.n_frames = 1 + std::min(o.gap_max_frames - 1, static_cast<int>(gr.uniform() * o.gap_max_frames));
-        gap.first_frame =
-            tt.digitised_first_frame + std::min(span - 1, static_cast<int>(gr.uniform() * std::max(1, span - gap.n_frames)));
-        gap.camera = gr.uniform() < o.gap_both_cameras_fraction
-                         ? -1
-                         : std::min(n_cam - 1, static_cast<int>(gr.uniform() * n_cam));
-        trial_gaps.push_back(gap);
-      }
-    }
-    for (const Gap& gap : trial_gaps) {
-      if (gap.trial != static_cast<int>(ti)) continue;
-      const auto it = std::find(tracks.points.begin(), tracks.points.end(), gap.point);
-      require(it != tracks.points.end(), fmt::format("gap names unknown point '{}'", gap.point));
-      require(gap.camera >= -1 && gap.camera < n_cam, fmt::format("gap names camera {} of {}", gap.camera, n_cam));
-      const int p = static_cast<int>(it - tracks.points.begin());
-      for (int f = gap.first_frame; f < std::min(o.n_frames, gap.first_frame + gap.n_frames); ++f)
-        for (int c = 0; c < n_cam; ++c)
-          if (gap.camera < 0 || gap.camera == c) {
-            tracks.uv_px(f, tracks.column(p, c)) = kNaN;
-            tracks.uv_px(f, tracks.column(p, c) + 1) = kNaN;
-          }
-      tt.gaps.push_back(gap);
-    }
-
-    TrialRecording trial;
-    trial.spec = {tt.id, fmt::format("trials/{}", tt.id)};
-    trial.tracks = std::move(tracks);
-    trial.force.layout = ForceLayout::EightChannel;
-    trial.force.sample_rate_hz = fs;
-    trial.force.pretrigger_samples = npre;
-    trial.force.trigger = fmt::format("Fz > {} N", o.trigger_threshold_n);
-    trial.force.t_s = t_s;
-    trial.force.data = data;
-    m.trials.push_back(trial.spec);
-    session.trials.push_back(std::move(trial));
-    truth.trials.push_back(std::move(tt));
+    SimulatedTrial st = simulate_trial(setup, ti);
+    m.trials.push_back(st.trial.spec);
+    session.trials.push_back(std::move(st.trial));
+    truth.trials.push_back(std::move(st.tt));
   }
   return out;
 }
