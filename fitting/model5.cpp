@@ -118,36 +118,19 @@ double add_shear(const Grid& Z, const Grid& V, double kx, double cx, double ky, 
   return to_frame;
 }
 
-}  // namespace
-
-Model5Result simulate_model5_leapfrog(const MatParams& params, const Model5Geometry& geo, const Impact& impact) {
-  validate(params, geo, impact);
-
+// Contact weights (face area share) W and lever arms Lx, Ly (overlap centroid from the face centre) per cell.
+void leapfrog_contact(const Model5Geometry& geo, const Eigen::VectorXd& node_x_m, const Eigen::VectorXd& node_y_m,
+                      double dx, double dy, Grid& W, Grid& Lx, Grid& Ly) {
   const int nx = geo.nodes_x, ny = geo.nodes_y;
-  const double n_cells = static_cast<double>(nx) * ny;
-  const double dx = geo.mat_length_m / nx, dy = geo.mat_width_m / ny;
-  const double x0 = -0.5 * geo.mat_length_m + 0.5 * dx;  // first cell centre
-  const double y0 = -0.5 * geo.mat_width_m + 0.5 * dy;
-  const bool framed = geo.edge == MatEdge::Framed;
-
-  Model5Result out;
-  out.node_x_m = Eigen::VectorXd::LinSpaced(nx, x0, x0 + (nx - 1) * dx);
-  out.node_y_m = Eigen::VectorXd::LinSpaced(ny, y0, y0 + (ny - 1) * dy);
-  if (nx == 1) out.node_x_m(0) = x0;
-  if (ny == 1) out.node_y_m(0) = y0;
-
-  // Contact weights (face area share) and lever arms (overlap centroid from
-  // the face centre) per cell.
   const double fx0 = geo.impact_x_m - 0.5 * geo.footprint_length_m, fx1 = geo.impact_x_m + 0.5 * geo.footprint_length_m;
   const double fy0 = geo.impact_y_m - 0.5 * geo.footprint_width_m, fy1 = geo.impact_y_m + 0.5 * geo.footprint_width_m;
   const double face_area = geo.footprint_length_m * geo.footprint_width_m;
-  Grid W = Grid::Zero(ny, nx), Lx = Grid::Zero(ny, nx), Ly = Grid::Zero(ny, nx);
   for (int ix = 0; ix < nx; ++ix) {
-    const double cx = out.node_x_m(ix);
+    const double cx = node_x_m(ix);
     double mx = 0.0;
     const double ox = overlap(cx - 0.5 * dx, cx + 0.5 * dx, fx0, fx1, &mx);
     for (int iy = 0; iy < ny; ++iy) {
-      const double cy = out.node_y_m(iy);
+      const double cy = node_y_m(iy);
       double my = 0.0;
       const double oy = overlap(cy - 0.5 * dy, cy + 0.5 * dy, fy0, fy1, &my);
       if (ox > 0.0 && oy > 0.0) {
@@ -159,28 +142,25 @@ Model5Result simulate_model5_leapfrog(const MatParams& params, const Model5Geome
   }
   require(W.sum() > 1e-9, fmt::format("the impactor's face at ({}, {}) m misses the {} x {} m mat", geo.impact_x_m,
                                       geo.impact_y_m, geo.mat_length_m, geo.mat_width_m));
+}
 
-  // Per-node elements (see model5.h).
-  const Grid K1 = params.k1_n_m * W, R1 = params.r1_n_s_m * W, K1c = params.k1_cubic_n_m3 * W;
-  const Grid R1u = (params.r1_unload_n_s_m >= 0.0 ? params.r1_unload_n_s_m : params.r1_n_s_m) * W;
-  const double k2n = params.k2_n_m / n_cells, r2n = params.r2_n_s_m / n_cells;
-  const double k3n = params.k3_n_m / n_cells, r3n = params.r3_n_s_m / n_cells;
-  const double m1n = params.m1_kg / n_cells, m2n = params.m2_kg / n_cells;
-  const double kx1 = geo.shear1_n_m * dy / dx, cx1 = geo.shear_damping1_n_s_m * dy / dx;
-  const double ky1 = geo.shear1_n_m * dx / dy, cy1 = geo.shear_damping1_n_s_m * dx / dy;
-  const double kx2 = geo.shear2_n_m * dy / dx, cx2 = geo.shear_damping2_n_s_m * dy / dx;
-  const double ky2 = geo.shear2_n_m * dx / dy, cy2 = geo.shear_damping2_n_s_m * dx / dy;
+// Per-node vertical elements of the leapfrog (see model5.h): k2, r2, k3, r3 and the node masses.
+struct LeapfrogNode {
+  double k2n, r2n, k3n, r3n, m1n, m2n;
+};
 
-  // Impactor.
-  const double M = impact.mass_kg, g = impact.gravity_m_s2;
-  const double h2 = geo.impactor_height_m * geo.impactor_height_m;
-  const double I_tilt_x = geo.inertia_tilt_x_kg_m2 > 0.0
-                        ? geo.inertia_tilt_x_kg_m2
-                        : M * (geo.footprint_length_m * geo.footprint_length_m + h2) / 12.0;
-  const double I_tilt_y = geo.inertia_tilt_y_kg_m2 > 0.0
-                        ? geo.inertia_tilt_y_kg_m2
-                        : M * (geo.footprint_width_m * geo.footprint_width_m + h2) / 12.0;
+// Shear links of the leapfrog along x and y, layer 1 then layer 2.
+struct LeapfrogShear {
+  double kx1, cx1, ky1, cy1, kx2, cx2, ky2, cy2;
+};
 
+// The leapfrog's step: the accuracy cap max_step_s and the explicit scheme's stability limit.
+double leapfrog_step_limit(const Model5Geometry& geo, bool framed, const Grid& K1, const Grid& R1, const Grid& R1u,
+                           const Grid& Lx, const Grid& Ly, const LeapfrogNode& node, const LeapfrogShear& shear,
+                           double M, double I_tilt_x, double I_tilt_y) {
+  const int nx = geo.nodes_x, ny = geo.nodes_y;
+  const auto [k2n, r2n, k3n, r3n, m1n, m2n] = node;
+  const auto [kx1, cx1, ky1, cy1, kx2, cx2, ky2, cy2] = shear;
   // Step: Gershgorin bounds on M^-1 K and M^-1 C (contact closed), then the
   // scheme's stability limit w^2 dt^2 + 4 gam dt = 4, halved.
   auto links = [](int count_x, int count_y, double px, double py) { return count_x * px + count_y * py; };
@@ -212,6 +192,58 @@ Model5Result simulate_model5_leapfrog(const MatParams& params, const Model5Geome
     const double dt_stable = w2 > 0.0 ? 2.0 * (-gam + std::sqrt(gam * gam + w2)) / w2 : 1.0 / gam;
     dt_limit = std::min(dt_limit, geo.stability_fraction * dt_stable);
   }
+  return dt_limit;
+}
+
+}  // namespace
+
+Model5Result simulate_model5_leapfrog(const MatParams& params, const Model5Geometry& geo, const Impact& impact) {
+  validate(params, geo, impact);
+
+  const int nx = geo.nodes_x, ny = geo.nodes_y;
+  const double n_cells = static_cast<double>(nx) * ny;
+  const double dx = geo.mat_length_m / nx, dy = geo.mat_width_m / ny;
+  const double x0 = -0.5 * geo.mat_length_m + 0.5 * dx;  // first cell centre
+  const double y0 = -0.5 * geo.mat_width_m + 0.5 * dy;
+  const bool framed = geo.edge == MatEdge::Framed;
+
+  Model5Result out;
+  out.node_x_m = Eigen::VectorXd::LinSpaced(nx, x0, x0 + (nx - 1) * dx);
+  out.node_y_m = Eigen::VectorXd::LinSpaced(ny, y0, y0 + (ny - 1) * dy);
+  if (nx == 1) out.node_x_m(0) = x0;
+  if (ny == 1) out.node_y_m(0) = y0;
+
+  // Contact weights (face area share) and lever arms (overlap centroid from
+  // the face centre) per cell.
+  const double fx0 = geo.impact_x_m - 0.5 * geo.footprint_length_m, fx1 = geo.impact_x_m + 0.5 * geo.footprint_length_m;
+  const double fy0 = geo.impact_y_m - 0.5 * geo.footprint_width_m, fy1 = geo.impact_y_m + 0.5 * geo.footprint_width_m;
+  const double face_area = geo.footprint_length_m * geo.footprint_width_m;
+  Grid W = Grid::Zero(ny, nx), Lx = Grid::Zero(ny, nx), Ly = Grid::Zero(ny, nx);
+  leapfrog_contact(geo, out.node_x_m, out.node_y_m, dx, dy, W, Lx, Ly);
+
+  // Per-node elements (see model5.h).
+  const Grid K1 = params.k1_n_m * W, R1 = params.r1_n_s_m * W, K1c = params.k1_cubic_n_m3 * W;
+  const Grid R1u = (params.r1_unload_n_s_m >= 0.0 ? params.r1_unload_n_s_m : params.r1_n_s_m) * W;
+  const double k2n = params.k2_n_m / n_cells, r2n = params.r2_n_s_m / n_cells;
+  const double k3n = params.k3_n_m / n_cells, r3n = params.r3_n_s_m / n_cells;
+  const double m1n = params.m1_kg / n_cells, m2n = params.m2_kg / n_cells;
+  const double kx1 = geo.shear1_n_m * dy / dx, cx1 = geo.shear_damping1_n_s_m * dy / dx;
+  const double ky1 = geo.shear1_n_m * dx / dy, cy1 = geo.shear_damping1_n_s_m * dx / dy;
+  const double kx2 = geo.shear2_n_m * dy / dx, cx2 = geo.shear_damping2_n_s_m * dy / dx;
+  const double ky2 = geo.shear2_n_m * dx / dy, cy2 = geo.shear_damping2_n_s_m * dx / dy;
+
+  // Impactor.
+  const double M = impact.mass_kg, g = impact.gravity_m_s2;
+  const double h2 = geo.impactor_height_m * geo.impactor_height_m;
+  const double I_tilt_x = geo.inertia_tilt_x_kg_m2 > 0.0
+                        ? geo.inertia_tilt_x_kg_m2
+                        : M * (geo.footprint_length_m * geo.footprint_length_m + h2) / 12.0;
+  const double I_tilt_y = geo.inertia_tilt_y_kg_m2 > 0.0
+                        ? geo.inertia_tilt_y_kg_m2
+                        : M * (geo.footprint_width_m * geo.footprint_width_m + h2) / 12.0;
+
+  const double dt_limit = leapfrog_step_limit(geo, framed, K1, R1, R1u, Lx, Ly, {k2n, r2n, k3n, r3n, m1n, m2n},
+                                              {kx1, cx1, ky1, cy1, kx2, cx2, ky2, cy2}, M, I_tilt_x, I_tilt_y);
   const double out_dt = impact.output_dt_s;
   const long n_sub = std::max(1L, static_cast<long>(std::ceil(out_dt / dt_limit - 1e-9)));
   const double dt = out_dt / static_cast<double>(n_sub);
