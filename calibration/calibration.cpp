@@ -567,6 +567,22 @@ class Calibrator {
   std::vector<Eigen::Vector2d> px_;  // scratch for error_of
 };
 
+// One check marker's error into result (sum_sq accumulates per axis), and
+// the per-axis RMS once all are in: shared by calibrate() and the report of
+// given cameras.
+void add_check_point(CalibrationResult& result, const std::string& id, const Eigen::Vector3d& error, int n_seeing,
+                     Eigen::Vector3d& sum_sq) {
+  result.check_points.push_back({id, error, n_seeing});
+  sum_sq += error.cwiseAbs2();
+  const double largest = error.cwiseAbs().maxCoeff();
+  result.check_max_m = std::isnan(result.check_max_m) ? largest : std::max(result.check_max_m, largest);
+}
+
+void finish_check(CalibrationResult& result, const Eigen::Vector3d& sum_sq) {
+  if (!result.check_points.empty())
+    result.check_rms_m = (sum_sq / static_cast<double>(result.check_points.size())).cwiseSqrt();
+}
+
 // The check markers' errors with `cameras` into result.
 void check_marker_errors(Calibrator& cal, const std::vector<Marker>& markers, const std::vector<Camera>& cameras,
                          CalibrationResult& result) {
@@ -580,13 +596,9 @@ void check_marker_errors(Calibrator& cal, const std::vector<Marker>& markers, co
     }
     int n_seeing = 0;
     for (int c = 0; c < cal.n_cameras(); ++c) n_seeing += cal.seen(c, m) ? 1 : 0;
-    result.check_points.push_back({markers[m].id, error, n_seeing});
-    sum_sq += error.cwiseAbs2();
-    const double largest = error.cwiseAbs().maxCoeff();
-    result.check_max_m = std::isnan(result.check_max_m) ? largest : std::max(result.check_max_m, largest);
+    add_check_point(result, markers[m].id, error, n_seeing, sum_sq);
   }
-  if (!result.check_points.empty())
-    result.check_rms_m = (sum_sq / static_cast<double>(result.check_points.size())).cwiseSqrt();
+  finish_check(result, sum_sq);
 }
 
 // Leave-one-out residuals and outliers (calibration.h) into result.
@@ -785,13 +797,9 @@ CalibrationResult given_calibration(const std::vector<Camera>& cameras, const st
       result.check_unseen.push_back(markers[m].id);
       continue;
     }
-    result.check_points.push_back({markers[m].id, error, n_seeing});
-    sum_sq += error.cwiseAbs2();
-    const double largest = error.cwiseAbs().maxCoeff();
-    result.check_max_m = std::isnan(result.check_max_m) ? largest : std::max(result.check_max_m, largest);
+    add_check_point(result, markers[m].id, error, n_seeing, sum_sq);
   }
-  if (!result.check_points.empty())
-    result.check_rms_m = (sum_sq / static_cast<double>(result.check_points.size())).cwiseSqrt();
+  finish_check(result, sum_sq);
   return result;
 }
 
