@@ -184,17 +184,16 @@ Trial make_trial(const fitting::FitOptions& current_options, const fitting::FitR
   Trial t;
   t.adds = std::move(adds);
   t.options = current_options;
-  t.options.initial = current.params;
+  t.options.initial = MatParams{};  // 0: the fitter's own full multi-start (see MatStageOptions::refit_starts)
   for (const auto* c : t.adds) {
     for (const auto& f : c->free) t.options.free_effects.push_back(f);
     if (c->masses) t.options.masses_free = true;
-    seed_effect(t.options.initial, *c);
   }
   if (starts > 0) {
+    t.options.initial = current.params;
+    for (const auto* c : t.adds) seed_effect(t.options.initial, *c);
     t.options.starts = starts;
     t.options.every_ordering = false;  // near the current optimum: its ordering and the best screened starts
-  } else {
-    t.options.initial = MatParams{};  // the fitter's own full multi-start (see MatStageOptions::refit_starts)
   }
   t.options.threads = 1;
   t.options.train_ids = current.train_ids;
@@ -304,10 +303,7 @@ std::string verdict(const Trial& t, const HeldOutErrors& before, const TrainingF
   for (const auto* c : t.adds)
     for (const auto& e : t.fit->estimates) {
       if (std::find(c->free.begin(), c->free.end(), e.name) == c->free.end()) continue;
-      const bool at_bound = std::any_of(t.fit->warnings.begin(), t.fit->warnings.end(), [&](const std::string& w) {
-        return w.rfind(e.name + " ", 0) == 0 && w.find("its bound") != std::string::npos;
-      });
-      if (at_bound) own = fmt::format("{} = {} sits at its bound: the box, not the data, sets it", e.name,
+      if (e.at_bound) own = fmt::format("{} = {} sits at its bound: the box, not the data, sets it", e.name,
                                       fmt_value(e.value));
       if (e.name == "maxwell_tau_s" && e.value < 2.0 * a.dt_s)
         own = fmt::format("maxwell_tau_s = {} ms relaxes within two plate samples ({} ms): a dashpot, not a "

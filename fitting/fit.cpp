@@ -1159,6 +1159,7 @@ void covariance(const Optimum& opt, const ParamSpace& space, const FitOptions& o
       else
         warnings->push_back(fmt::format("{} sits at its bound ({:.6g})", e.name, e.value));
       e.identifiable = false;
+      e.at_bound = true;
     }
   }
   for (int a = 0; a < np; ++a)

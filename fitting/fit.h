@@ -177,6 +177,7 @@ struct ParameterEstimate {
   double rel_se = std::numeric_limits<double>::quiet_NaN();  // se / |value|
   bool free = true;
   bool identifiable = true;
+  bool at_bound = false;  // ended within a thousandth of its searched span from a bound
 };
 
 struct TrialReport {
