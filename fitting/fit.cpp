@@ -409,29 +409,6 @@ double profile_shift(const Prepared& p, const std::vector<double>& grf) {
   return sse(x) < best_c ? x : best;
 }
 
-// The Ceres cost of one trial with automatic differentiation: blocks
-// (model parameters) and, when the clock is fitted, (shift).
-struct AutoTrialCost {
-  const Prepared* p;
-  const ParamSpace* space;
-  detail::Layout layout;
-  bool exact;
-  std::atomic<long>* evals;
-
-  template <typename T>
-  bool operator()(T const* const* u, T* res) const {
-    const detail::ParamsT<T> pt = space->to_params(u[0]);
-    detail::Trace<T> tr;
-    detail::run_model<T>(layout, pt, p->impact, exact, kRk4Step, p->n_grid, tr);
-    if (evals) ++*evals;
-    if (p->shifted()) fill_residuals<T>(*p, tr.grf, tr.impactor, u[1][0], res);
-    else fill_residuals<T>(*p, tr.grf, tr.impactor, 0.0, res);
-    for (int i = 0; i < p->n_residuals(); ++i)
-      if (!finite_all(res[i])) return false;
-    return true;
-  }
-};
-
 // Simulates a trial's grid in doubles (the callback if given).
 detail::Trace<double> simulate_window(const Prepared& p, const ParamSpace& space, const FitOptions& o,
                                       const MatParams& mp, std::atomic<long>* evals) {
@@ -559,12 +536,43 @@ void shift_jacobian(const Prepared& p, const std::vector<double>& grf, double sh
   for (int k = static_cast<int>(p.f_idx.size()); k < p.n_residuals(); ++k) out[k] = 0.0;
 }
 
-// Model 5's cost of one trial with exact derivatives: its simulation
-// (fitting/model5_impl.h) in dual numbers over the free parameters, the
-// derivative directions in chunks run on up to `threads` threads (Model 5
-// is fitted from one warm start: its Levenberg-Marquardt run would leave
-// the other core idle); the clock shift analytically.
-class Model5TrialCost : public TrialCostBase {
+// The simulations the dual-number cost below runs: Model 5 (fitting/
+// model5_impl.h) or Models 1-4 (fitting/models_impl.h), in doubles or in
+// ceres::Jet.
+struct Model5Sim {
+  static constexpr bool kModel5 = true;
+  template <typename T>
+  static void run(const Prepared& p, const ParamSpace& space, const FitOptions& o, const T* u, std::vector<T>* grf,
+                  std::vector<T>* imp) {
+    simulate_model5_t<T>(model5_params_t(space.to_params<T>(u)), o.model5_geometry, p.impact, p.n_grid, grf,
+                         p.k_idx.empty() ? nullptr : imp, nullptr);
+  }
+};
+
+struct ChainSim {
+  static constexpr bool kModel5 = false;
+  template <typename T>
+  static void run(const Prepared& p, const ParamSpace& space, const FitOptions& o, const T* u, std::vector<T>* grf,
+                  std::vector<T>* imp) {
+    const ModelKind shape = space.model;
+    const detail::Layout layout = detail::layout_for(shape, shape == ModelKind::Model2 && o.m_eff_kg == 0.0);
+    detail::Trace<T> tr;
+    detail::run_model<T>(layout, space.to_params(u), p.impact, !space.nonlinear(), kRk4Step, p.n_grid, tr);
+    *grf = std::move(tr.grf);
+    *imp = std::move(tr.impactor);
+  }
+};
+
+// The cost of one trial with exact derivatives: the simulation in dual
+// numbers over the model's free parameters only (a Jet as wide as the
+// chunk, not a fixed 8: Model 1's two parameters cost three doubles a
+// value, not nine), the directions in chunks of at most 8 run on up to
+// `threads` threads (a single Levenberg-Marquardt run, e.g. Model 5 from
+// its warm start, would leave the other core idle); the clock shift's
+// column analytic from the interpolant (the simulation does not depend on
+// it), so it never costs a dual direction.
+template <class Sim>
+class DualTrialCost : public TrialCostBase {
  public:
   using TrialCostBase::TrialCostBase;
 
@@ -576,17 +584,25 @@ class Model5TrialCost : public TrialCostBase {
       if (jac && jac[0]) {
         // Chunks of at most 8 directions, at least one per thread.
         const int threads = std::max(1, o_->threads);
-        const int per = (n + std::max((n + 7) / 8, std::min(threads, n)) - 1) / std::max((n + 7) / 8, std::min(threads, n));
-        const int n_chunks = (n + per - 1) / per;
+        const int n_chunks = std::max((n + 7) / 8, std::min(threads, n));
+        const int per = (n + n_chunks - 1) / n_chunks;
         std::vector<std::vector<double>> grfs(n_chunks);
         std::vector<char> ok(n_chunks, 0);
         auto run = [&](int c) {
           const int first = c * per, count = std::min(per, n - first);
+          if (count <= 0) { ok[c] = 1; return; }
           try {
             double* r = c == 0 ? res : nullptr;
-            if (per <= 3) chunk<3>(u[0], first, count, shift, r, jac[0], &grfs[c]);
-            else if (per <= 4) chunk<4>(u[0], first, count, shift, r, jac[0], &grfs[c]);
-            else chunk<8>(u[0], first, count, shift, r, jac[0], &grfs[c]);
+            if constexpr (Sim::kModel5) {
+              if (per <= 3) chunk<3>(u[0], first, count, shift, r, jac[0], &grfs[c]);
+              else if (per <= 4) chunk<4>(u[0], first, count, shift, r, jac[0], &grfs[c]);
+              else chunk<8>(u[0], first, count, shift, r, jac[0], &grfs[c]);
+            } else {
+              if (per <= 2) chunk<2>(u[0], first, count, shift, r, jac[0], &grfs[c]);
+              else if (per <= 4) chunk<4>(u[0], first, count, shift, r, jac[0], &grfs[c]);
+              else if (per <= 6) chunk<6>(u[0], first, count, shift, r, jac[0], &grfs[c]);
+              else chunk<8>(u[0], first, count, shift, r, jac[0], &grfs[c]);
+            }
             ok[c] = 1;
           } catch (const Error&) {
           }
@@ -601,8 +617,7 @@ class Model5TrialCost : public TrialCostBase {
         grf = std::move(grfs[0]);
       } else {
         std::vector<double> imp;
-        simulate_model5_t<double>(model5_params_t(space_->to_params<double>(u[0])), o_->model5_geometry, p_->impact,
-                                  p_->n_grid, &grf, p_->k_idx.empty() ? nullptr : &imp, nullptr);
+        Sim::template run<double>(*p_, *space_, *o_, u[0], &grf, &imp);
         if (evals_) ++*evals_;
         fill_residuals<double>(*p_, grf, imp, shift, res);
       }
@@ -632,10 +647,8 @@ class Model5TrialCost : public TrialCostBase {
       uj[j] = J(u[j]);
       if (j >= first && j < first + count) uj[j].v[j - first] = 1.0;
     }
-    const Model5ParamsT<J> q = model5_params_t(space_->to_params<J>(uj.data()));
     std::vector<J> g, z;
-    simulate_model5_t<J>(q, o_->model5_geometry, p_->impact, p_->n_grid, &g, p_->k_idx.empty() ? nullptr : &z,
-                         nullptr);
+    Sim::template run<J>(*p_, *space_, *o_, uj.data(), &g, &z);
     std::vector<J> r(m);
     fill_residuals<J>(*p_, g, z, shift, r.data());
     for (int i = 0; i < m; ++i) {
@@ -758,8 +771,6 @@ std::unique_ptr<ceres::Problem> make_problem(const std::vector<Prepared>& preps,
   ceres::Problem::Options po;
   auto problem = std::make_unique<ceres::Problem>(po);
   const bool numeric = static_cast<bool>(o.simulator);
-  const ModelKind shape = space.model;
-  const detail::Layout layout = detail::layout_for(shape, shape == ModelKind::Model2 && o.m_eff_kg == 0.0);
   blocks->assign(1, u);
   problem->AddParameterBlock(u, space.size());
   for (size_t t = 0; t < preps.size(); ++t) {
@@ -777,14 +788,9 @@ std::unique_ptr<ceres::Problem> make_problem(const std::vector<Prepared>& preps,
     if (numeric) {
       cf = new NumericTrialCost(&p, &space, &o, evals);
     } else if (o.model == ModelKind::Model5) {
-      cf = new Model5TrialCost(&p, &space, &o, evals);
+      cf = new DualTrialCost<Model5Sim>(&p, &space, &o, evals);
     } else {
-      auto* c = new ceres::DynamicAutoDiffCostFunction<AutoTrialCost, 8>(
-          new AutoTrialCost{&p, &space, layout, !space.nonlinear(), evals});
-      c->AddParameterBlock(space.size());
-      if (p.shifted()) c->AddParameterBlock(1);
-      c->SetNumResiduals(p.n_residuals());
-      cf = c;
+      cf = new DualTrialCost<ChainSim>(&p, &space, &o, evals);
     }
     problem->AddResidualBlock(cf, nullptr, params);
   }
