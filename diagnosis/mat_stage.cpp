@@ -184,14 +184,18 @@ Trial make_trial(const fitting::FitOptions& current_options, const fitting::FitR
   Trial t;
   t.adds = std::move(adds);
   t.options = current_options;
-  t.options.initial = MatParams{};  // 0: the fitter's own full multi-start (see MatStageOptions::refit_starts)
   for (const auto* c : t.adds) {
     for (const auto& f : c->free) t.options.free_effects.push_back(f);
     if (c->masses) t.options.masses_free = true;
   }
+  // The fitter's own full multi-start (see MatStageOptions::refit_starts),
+  // plus the current optimum with the new terms seeded small, run to
+  // convergence beside it without cutting the others (protect_initial).
+  t.options.initial = current.params;
+  for (const auto* c : t.adds) seed_effect(t.options.initial, *c);
+  t.options.protect_initial = true;
   if (starts > 0) {
-    t.options.initial = current.params;
-    for (const auto* c : t.adds) seed_effect(t.options.initial, *c);
+    t.options.protect_initial = false;
     t.options.starts = starts;
     t.options.every_ordering = false;  // near the current optimum: its ordering and the best screened starts
   }

@@ -616,10 +616,21 @@ class DualTrialCost : public TrialCostBase {
           if (!k) return false;
         grf = std::move(grfs[0]);
       } else {
-        std::vector<double> imp;
-        Sim::template run<double>(*p_, *space_, *o_, u[0], &grf, &imp);
-        if (evals_) ++*evals_;
-        fill_residuals<double>(*p_, grf, imp, shift, res);
+        // Ceres evaluates a bounded problem's candidate point twice (its
+        // projected line search tries the full step, then the trust region
+        // evaluates the step it took): the same point is answered once.
+        std::vector<double> key(u[0], u[0] + n);
+        key.push_back(shift);
+        if (key == last_key_ && !last_res_.empty()) {
+          std::copy(last_res_.begin(), last_res_.end(), res);
+        } else {
+          std::vector<double> imp;
+          Sim::template run<double>(*p_, *space_, *o_, u[0], &grf, &imp);
+          if (evals_) ++*evals_;
+          fill_residuals<double>(*p_, grf, imp, shift, res);
+          last_key_ = std::move(key);
+          last_res_.assign(res, res + m);
+        }
       }
     } catch (const Error&) {
       return false;
@@ -658,6 +669,10 @@ class DualTrialCost : public TrialCostBase {
     grf->resize(g.size());
     for (size_t k = 0; k < g.size(); ++k) (*grf)[k] = g[k].a;
   }
+
+  // The last residual-only evaluation (parameters and shift, residuals);
+  // one cost object belongs to one Levenberg-Marquardt run on one thread.
+  mutable std::vector<double> last_key_, last_res_;
 };
 
 // One trial's residuals (doubles) with its clock shift profiled out; the
@@ -830,11 +845,17 @@ Optimum run_ceres(const std::vector<Prepared>& preps, const ParamSpace& space, c
   so.num_threads = 1;
   // With bounds, Ceres follows every trust-region step by a projected Armijo
   // line search (its own source calls it "not terribly effective", ceres
-  // issue #187) whose cubic interpolation costs a Jacobian per trial point:
-  // for Model 5's warm start on session s005, 169 Jacobians and 231
-  // simulations in 42 iterations, against 37 and 42 without it, ending at a
-  // lower cost. Model 5 goes without (Models 1-4 keep it: their results are
-  // relied on as they are).
+  // issue #187). With its default cubic interpolation every trial point
+  // costs a Jacobian; quadratic interpolation needs only the cost, a
+  // simulation in doubles (Models 1-4: same optima on the six validation
+  // sessions, 23-24 of 27 unseen sessions named right either way, the
+  // misses being which basin a run falls into, not the interpolation).
+  // Switching the line search off (for Models 1-4 too) ended Maxwell-arm
+  // and unloading-damping refits in far worse optima (held-out 3.5 -> 89
+  // noise SDs on one unseen session). Model 5 goes without: from its warm
+  // start, 169 Jacobians and 231 simulations in 42 iterations against 37
+  // and 42 without, ending at a lower cost.
+  so.line_search_interpolation_type = ceres::QUADRATIC;
   if (o.model == ModelKind::Model5) so.max_num_line_search_step_size_iterations = 0;
   ceres::Solver::Summary summary;
   ceres::Solve(so, problem.get(), &summary);
@@ -1027,7 +1048,7 @@ Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, con
   }
   // Two stages: a few iterations from every start, then to convergence
   // from the ones that came within reach of the best (a basin whose start
-  // is still 3x worse than the best after the first stage is not followed:
+  // is still follow_factor times worse than the best after the first stage is not followed:
   // from a start inside the right basin Levenberg-Marquardt converges in a
   // handful of iterations, while the far corners cost the most simulation).
   std::vector<Optimum> runs(order.size());
@@ -1055,11 +1076,16 @@ Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, con
   FitOptions first_stage = o;
   first_stage.max_iterations = std::min(o.max_iterations, o.first_stage_iterations);
   in_parallel(all, first_stage, false);
+  // A protected given start (FitOptions::protect_initial) goes on whatever
+  // it shows, and does not set the lead that cuts the others.
+  const bool protect = o.protect_initial && o.initial.k1_n_m > 0.0 && !warm_only;
+  auto is_initial = [&](size_t k) { return protect && order[k] == 0; };
   double lead = std::numeric_limits<double>::infinity();
-  for (const auto& r : runs) lead = std::min(lead, r.cost);
+  for (size_t k = 0; k < runs.size(); ++k)
+    if (!is_initial(k)) lead = std::min(lead, runs[k].cost);
   std::vector<size_t> follow;
   for (size_t k = 0; k < runs.size(); ++k)
-    if (std::isfinite(runs[k].cost) && runs[k].cost <= o.follow_factor * lead) follow.push_back(k);
+    if (std::isfinite(runs[k].cost) && (runs[k].cost <= o.follow_factor * lead || is_initial(k))) follow.push_back(k);
   if (o.max_iterations > first_stage.max_iterations) in_parallel(follow, o, true);
 
   Search s;

@@ -145,6 +145,12 @@ struct FitOptions {
   AnnealOptions anneal;                // for Optimizer::Annealing
   bool polish_annealing = false;       // finish annealing with Ceres
   MatParams initial;                   // if k1_n_m > 0: an extra start (the first)
+  // The given start runs to convergence whatever its first stage shows,
+  // and its cost does not set the lead that cuts the other starts: a
+  // nested model's optimum with a new term seeded (the loop's candidate
+  // refits) often leads after the first stage from a basin that is not
+  // the best, and would cut the runs heading for the one that is.
+  bool protect_initial = false;
   // Levenberg-Marquardt from the best start of every spring ordering (plus
   // the best overall up to `starts`); false: from `initial` and the best
   // `starts` - 1 screened starts only (a refit near a known optimum).
@@ -160,7 +166,10 @@ struct FitOptions {
   int threads = 2;                     // Levenberg-Marquardt runs in parallel; a single run
                                        //   (Model 5) splits its derivatives over them instead
   int first_stage_iterations = 12;     // every start runs this many iterations first;
-  double follow_factor = 3.0;          //   those within this factor of the best cost go on
+  double follow_factor = 30.0;         //   those within this factor of the best cost go on
+                                       //   (3 cut a run heading for a Maxwell arm's true basin,
+                                       //   cost 40 at the end, at 3.3e5 after the first stage
+                                       //   while a dashpot basin led at 4.2e4)
   double basin_tolerance = 1.0;        // alternatives within this many chi-square(p, 95 %) units
 
   // Validation.
