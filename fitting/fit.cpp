@@ -774,6 +774,8 @@ struct Optimum {
   Eigen::VectorXd u;
   std::vector<double> shifts;  // per prepared trial
   double cost = std::numeric_limits<double>::infinity();
+  bool converged = false;    // Ceres stopped on a tolerance, not on the iteration limit
+  double radius = 0.0;       // the trust region's radius at the end (0: Ceres' default start)
   Eigen::MatrixXd jacobian;  // at u: residuals x (parameters, then the fitted shifts)
   Eigen::VectorXd residuals;
 };
@@ -819,7 +821,7 @@ std::unique_ptr<ceres::Problem> make_problem(const std::vector<Prepared>& preps,
 // Levenberg-Marquardt from u0 (shifts profiled at u0 to start).
 Optimum run_ceres(const std::vector<Prepared>& preps, const ParamSpace& space, const FitOptions& o,
                   const Eigen::VectorXd& u0, std::atomic<long>* evals, bool want_jacobian,
-                  const std::vector<double>* shifts0 = nullptr) {
+                  const std::vector<double>* shifts0 = nullptr, double radius0 = 0.0) {
   Optimum best;
   std::vector<double> u(u0.data(), u0.data() + u0.size());
   std::vector<double> shifts(preps.size(), 0.0);
@@ -843,6 +845,9 @@ Optimum run_ceres(const std::vector<Prepared>& preps, const ParamSpace& space, c
   so.logging_type = ceres::SILENT;
   so.minimizer_progress_to_stdout = false;
   so.num_threads = 1;
+  // A run continued from a chunk keeps its trust region (a fresh radius
+  // spends iterations on rejected steps before it shrinks back).
+  if (radius0 > 0.0) so.initial_trust_region_radius = radius0;
   // With bounds, Ceres follows every trust-region step by a projected Armijo
   // line search (its own source calls it "not terribly effective", ceres
   // issue #187). With its default cubic interpolation every trial point
@@ -862,6 +867,8 @@ Optimum run_ceres(const std::vector<Prepared>& preps, const ParamSpace& space, c
   best.u = Eigen::Map<Eigen::VectorXd>(u.data(), u.size());
   best.shifts = shifts;
   best.cost = summary.IsSolutionUsable() ? summary.final_cost : std::numeric_limits<double>::infinity();
+  best.converged = summary.termination_type == ceres::CONVERGENCE || !summary.IsSolutionUsable();
+  if (!summary.iterations.empty()) best.radius = summary.iterations.back().trust_region_radius;
   if (want_jacobian) {
     double cost = 0.0;
     std::vector<double> res;
@@ -1052,7 +1059,8 @@ Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, con
   // from a start inside the right basin Levenberg-Marquardt converges in a
   // handful of iterations, while the far corners cost the most simulation).
   std::vector<Optimum> runs(order.size());
-  auto in_parallel = [&](const std::vector<size_t>& which, const FitOptions& oo, bool from_runs) {
+  auto in_parallel = [&](const std::vector<size_t>& which, const FitOptions& oo, bool from_runs,
+                         bool keep_radius = false) {
     std::atomic<size_t> next{0};
     const int threads = std::max(1, std::min<int>(o.threads, static_cast<int>(which.size())));
     // The threads the runs leave free go to each run's derivatives (Model 5).
@@ -1062,8 +1070,10 @@ Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, con
       for (size_t q; (q = next++) < which.size();) {
         const size_t k = which[q];
         const Eigen::VectorXd u0 = from_runs ? runs[k].u : cands[order[k]];
-        Optimum r = run_ceres(preps, space, inner, u0, evals, false, from_runs ? &runs[k].shifts : nullptr);
+        Optimum r = run_ceres(preps, space, inner, u0, evals, false, from_runs ? &runs[k].shifts : nullptr,
+                              from_runs && keep_radius ? runs[k].radius : 0.0);
         if (!from_runs || r.cost <= runs[k].cost) runs[k] = std::move(r);
+        else runs[k].converged = true;  // no progress from here
       }
     };
     std::vector<std::thread> pool;
@@ -1086,7 +1096,36 @@ Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, con
   std::vector<size_t> follow;
   for (size_t k = 0; k < runs.size(); ++k)
     if (std::isfinite(runs[k].cost) && (runs[k].cost <= o.follow_factor * lead || is_initial(k))) follow.push_back(k);
-  if (o.max_iterations > first_stage.max_iterations) in_parallel(follow, o, true);
+  // Then in chunks: a run that stays far behind the best while it crawls
+  // (gaining little per chunk) is dropped; the others go on until Ceres
+  // stops them on a tolerance or the iteration limit. Runs in a wrong basin
+  // typically crawl along a bound for 30-90 iterations, gaining a few per
+  // cent; a run that has entered its basin gains orders of magnitude.
+  // (The follow stage has max_iterations of its own after the first stage.)
+  int done = 0;
+  std::vector<size_t> active = follow;
+  if (o.max_iterations <= first_stage.max_iterations) active.clear();
+  while (!active.empty() && done < o.max_iterations) {
+    FitOptions chunk = o;
+    // One run left has nothing to be dropped for: it goes on in one piece.
+    chunk.max_iterations = active.size() > 1 ? std::min(std::max(1, o.follow_chunk_iterations), o.max_iterations - done)
+                                             : o.max_iterations - done;
+    std::vector<double> before;
+    for (size_t k : active) before.push_back(runs[k].cost);
+    in_parallel(active, chunk, true, done > 0);
+    done += chunk.max_iterations;
+    double best_now = std::numeric_limits<double>::infinity();
+    for (const auto& r : runs) best_now = std::min(best_now, r.cost);
+    std::vector<size_t> next;
+    for (size_t i = 0; i < active.size(); ++i) {
+      const Optimum& r = runs[active[i]];
+      if (r.converged || !std::isfinite(r.cost)) continue;
+      const double gain = (before[i] - r.cost) / std::max(r.cost, 1e-300);
+      if (r.cost > o.drop_factor * best_now && gain < o.drop_gain) continue;
+      next.push_back(active[i]);
+    }
+    active = std::move(next);
+  }
 
   Search s;
   int failed = 0, best_k = -1;

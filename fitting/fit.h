@@ -170,6 +170,9 @@ struct FitOptions {
                                        //   (3 cut a run heading for a Maxwell arm's true basin,
                                        //   cost 40 at the end, at 3.3e5 after the first stage
                                        //   while a dashpot basin led at 4.2e4)
+  int follow_chunk_iterations = 10;    // the followed runs go on in chunks of this many iterations;
+  double drop_factor = 3.0;            //   after each, a run above this factor of the best cost
+  double drop_gain = 0.3;              //   that gained less than this fraction in the chunk stops
   double basin_tolerance = 1.0;        // alternatives within this many chi-square(p, 95 %) units
 
   // Validation.
