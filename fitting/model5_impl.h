@@ -246,7 +246,7 @@ class Integrator {
     c2_ = g.shear_damping2_n_s_m;
     r_ext_ = p.hysteresis ? p.r1_unload_n_s_m : p.r1_n_s_m;
     for (auto* v : {&z1_, &z2_, &v1_, &v2_, &ab1_, &ab2_, &z1w_, &z2w_, &v1w_, &v2w_, &ab1w_, &ab2w_, &g1_, &g2_,
-                    &top_, &top0_, &d_, &dd_, &fr_, &k1v_})
+                    &top_, &top0_, &d_, &dd_, &k1v_})
       v->assign(n, T(0.0));
     in_.assign(n, 0);
     was_.assign(n, 0);
@@ -277,21 +277,40 @@ class Integrator {
   // the face presses (it reaches the element's top and pushes), and the
   // total contact force. Returns the contact force (N).
   T contact() {
+    // Members to locals: the stores below could alias them for the compiler.
+    const T zc = zc_, tx = tx_, ty = ty_, vc = vc_, wx = wx_, wy = wy_;
+    const T r1 = p_.r1_n_s_m, r1u = p_.r1_unload_n_s_m, kc = p_.k1_cubic_n_m3;
+    const bool hysteresis = p_.hysteresis, cubic = p_.cubic;
+    const double* __restrict lx = L_.lx.data();
+    const double* __restrict ly = L_.ly.data();
+    const double* __restrict w = L_.w.data();
+    const T* __restrict z1 = z1_.data();
+    const T* __restrict v1 = v1_.data();
+    const T* __restrict k1v = k1v_.data();
+    const T* __restrict top = top_.data();
+    T* __restrict dv = d_.data();
+    T* __restrict ddv = dd_.data();
+    char* __restrict in = in_.data();
+    char* __restrict was = was_.data();
+    char* __restrict unload = unload_.data();
     T total = T(0.0);
     for (int j : L_.face) {
-      const T u = zc_ + tx_ * L_.lx[j] + ty_ * L_.ly[j];
-      const T ud = vc_ + wx_ * L_.lx[j] + wy_ * L_.ly[j];
-      d_[j] = u - z1_[j];
-      dd_[j] = ud - v1_[j];
-      unload_[j] = p_.hysteresis && detail::scalar_of(dd_[j]) < 0.0;
-      T f = k1v_[j] * d_[j] + (unload_[j] ? p_.r1_unload_n_s_m : p_.r1_n_s_m) * L_.w[j] * dd_[j];
-      if (p_.cubic) f += p_.k1_cubic_n_m3 * L_.w[j] * d_[j] * d_[j] * d_[j];
-      fr_[j] = f;
-      was_[j] = in_[j];
+      const T u = zc + tx * lx[j] + ty * ly[j];
+      const T ud = vc + wx * lx[j] + wy * ly[j];
+      const T d = u - z1[j];
+      const T dd = ud - v1[j];
+      dv[j] = d;
+      ddv[j] = dd;
+      const bool un = hysteresis && detail::scalar_of(dd) < 0.0;
+      unload[j] = un;
+      T f = k1v[j] * d + (un ? r1u : r1) * w[j] * dd;
+      if (cubic) f += kc * w[j] * d * d * d;
+      was[j] = in[j];
       // Pressed while it was, or once the face reaches the element's top;
       // released by step() when its impulse pulls.
-      in_[j] = in_[j] || detail::scalar_of(d_[j]) >= detail::scalar_of(top_[j]);
-      if (in_[j] && detail::scalar_of(f) > 0.0) total += f;
+      const bool pressed = in[j] || detail::scalar_of(d) >= detail::scalar_of(top[j]);
+      in[j] = pressed;
+      if (pressed && detail::scalar_of(f) > 0.0) total += f;
     }
     return total;
   }
@@ -390,13 +409,15 @@ class Integrator {
       using std::exp;
       relax_ = detail::scalar_of(r_ext_) > 0.0 ? T(exp(-(T(h) / r_ext_) * p_.k1_n_m)) : T(0.0);
     }
+    const T relax = relax_;
+    const bool cubic_relax = p_.cubic && detail::scalar_of(r_ext_) > 0.0;
     for (int j : L_.face) {
       if (in_[j] || was_[j]) top_[j] = detail::scalar_of(d_[j]) > 0.0 ? d_[j] : T(0.0);
-      if (p_.cubic && detail::scalar_of(r_ext_) > 0.0) {
+      if (cubic_relax) {
         using std::exp;
         top_[j] *= exp(-(T(h) / r_ext_) * (p_.k1_n_m + p_.k1_cubic_n_m3 * top_[j] * top_[j]));
       } else {
-        top_[j] *= relax_;
+        top_[j] *= relax;
       }
     }
     kick(pending_ + 0.5 * h, true);
@@ -685,15 +706,93 @@ class Integrator {
     {
       Phi phi;
       std::copy(free_phi_, free_phi_ + 16, phi.p);
-      for (const auto& run : free_runs_)
-        free_step(run.first, run.second, phi, z1_.data(), z2_.data(), z1w_.data(), z2w_.data(), v1w_.data(),
-                  v2w_.data());
+      if constexpr (std::is_same_v<T, double>) {
+        // One long vectorised loop over every cell beats short runs between
+        // the pressed ones; the last stage overwrites the pressed cells.
+        free_step(0, L_.n, phi, z1_.data(), z2_.data(), z1w_.data(), z2w_.data(), v1w_.data(), v2w_.data());
+      } else {
+        for (const auto& run : free_runs_)
+          free_step(run.first, run.second, phi, z1_.data(), z2_.data(), z1w_.data(), z2w_.data(), v1w_.data(),
+                    v2w_.data());
+      }
     }
     const T start[6] = {zc_, tx_, ty_, vc_, wx_, wy_};  // the impactor's q_n, v_n
     T iv[kStages][3], ia[kStages][3];  // impactor stage velocities / accelerations
     stage<0>(h, beta, start, iv, ia);
     stage<1>(h, beta, start, iv, ia);
     stage<2>(h, beta, start, iv, ia);
+  }
+
+  // The pressed columns' part of stage I before the impactor's solve:
+  // their Qr, Vr, the 2 x 2 elimination and the back-substitution term
+  // (restrict arguments, as the kernels above).
+  template <int I>
+  static void stage_columns(int nc, double c0, double c1, T qy0, T qy1, T qy2, double beta, T k2n, T k3n, T m1n,
+                            T m2n, const T* __restrict cz1, const T* __restrict cz2, const T* __restrict cv1,
+                            const T* __restrict cv2, const T* __restrict sv1a, const T* __restrict sv2a,
+                            const T* __restrict sa1a, const T* __restrict sa2a, const T* __restrict sv1b,
+                            const T* __restrict sv2b, const T* __restrict sa1b, const T* __restrict sa2b,
+                            const double* __restrict lx, const double* __restrict ly, const T* __restrict k1v,
+                            const T* __restrict g1, const T* __restrict g12, const T* __restrict g2,
+                            const T* __restrict acol, T* __restrict q1r, T* __restrict q2r, T* __restrict w1r,
+                            T* __restrict w2r, T* __restrict uq, T* __restrict p1, T* __restrict p2,
+                            T* __restrict back) {
+    for (int k = 0; k < nc; ++k) {
+      T q1 = cz1[k], q2 = cz2[k], w1 = cv1[k], w2 = cv2[k];
+      if constexpr (I >= 1) {
+        q1 += c0 * sv1a[k];
+        q2 += c0 * sv2a[k];
+        w1 += c0 * sa1a[k];
+        w2 += c0 * sa2a[k];
+      }
+      if constexpr (I >= 2) {
+        q1 += c1 * sv1b[k];
+        q2 += c1 * sv2b[k];
+        w1 += c1 * sa1b[k];
+        w2 += c1 * sa2b[k];
+      }
+      q1r[k] = q1;
+      q2r[k] = q2;
+      w1r[k] = w1;
+      w2r[k] = w2;
+      const T u = qy0 + qy1 * lx[k] + qy2 * ly[k];
+      uq[k] = u;
+      const T f12 = k2n * (q1 - q2);
+      const T fc = k1v[k] * (u - q1);
+      const T r1 = m1n * w1 + beta * (fc - f12);
+      const T r2 = m2n * w2 + beta * (f12 - k3n * q2);
+      const T pp1 = g1[k] * r1 + g12[k] * r2;
+      p1[k] = pp1;
+      p2[k] = g12[k] * r1 + g2[k] * r2;
+      back[k] = acol[k] * pp1 - beta * fc;
+    }
+  }
+  // The pressed columns' stage velocities once the impactor's are known
+  // (stages before the last): element 1's force into the step's impulse,
+  // the stage values the next stages use.
+  template <int I>
+  static void stage_velocities(int nc, double bi, double beta, T y0, T y1, T y2, const double* __restrict lx,
+                               const double* __restrict ly, const T* __restrict p1, const T* __restrict p2,
+                               const T* __restrict sa1, const T* __restrict sa2, const T* __restrict uq,
+                               const T* __restrict q1r, const T* __restrict w1r, const T* __restrict w2r,
+                               const T* __restrict k1v, const T* __restrict c1v, T* __restrict imp,
+                               T* __restrict sv1, T* __restrict sv2, T* __restrict sa1s, T* __restrict sa2s) {
+    for (int k = 0; k < nc; ++k) {
+      const T u = y0 + y1 * lx[k] + y2 * ly[k];
+      const T V1 = p1[k] + sa1[k] * u;
+      const T V2 = p2[k] + sa2[k] * u;
+      const T d = uq[k] + beta * u - (q1r[k] + beta * V1);
+      const T f = k1v[k] * d + c1v[k] * (u - V1);
+      if constexpr (I == 0) {
+        imp[k] = bi * f;
+      } else {
+        imp[k] = imp[k] + bi * f;
+      }
+      sv1[k] = V1;
+      sv2[k] = V2;
+      sa1s[k] = (V1 - w1r[k]) / beta;
+      sa2s[k] = (V2 - w2r[k]) / beta;
+    }
   }
 
   // Stage I of the implicit step for the impactor and the pressed columns
@@ -731,53 +830,12 @@ class Integrator {
     const T* __restrict sa1 = csa1_.data();
     const T* __restrict sa2 = csa2_.data();
     const T k2n = k2n_, k3n = k3n_, m1n = m1n_, m2n = m2n_;
-    {
-      // Columns the face presses: eliminated onto the impactor. Each
-      // column's back-substitution term first, then their sum in cell order.
-      const T* __restrict cz1 = cz1_.data();
-      const T* __restrict cz2 = cz2_.data();
-      const T* __restrict cv1 = cv1_.data();
-      const T* __restrict cv2 = cv2_.data();
-      const T* __restrict sv1a = sv1_[0].data();
-      const T* __restrict sv2a = sv2_[0].data();
-      const T* __restrict sa1a = sa1s_[0].data();
-      const T* __restrict sa2a = sa2s_[0].data();
-      const T* __restrict sv1b = sv1_[1].data();
-      const T* __restrict sv2b = sv2_[1].data();
-      const T* __restrict sa1b = sa1s_[1].data();
-      const T* __restrict sa2b = sa2s_[1].data();
-      const double c0 = c[0], c1 = c[1];
-      const T qy0 = qy[0], qy1 = qy[1], qy2 = qy[2];
-      for (int k = 0; k < nc; ++k) {
-        T q1 = cz1[k], q2 = cz2[k], w1 = cv1[k], w2 = cv2[k];
-        if constexpr (I >= 1) {
-          q1 += c0 * sv1a[k];
-          q2 += c0 * sv2a[k];
-          w1 += c0 * sa1a[k];
-          w2 += c0 * sa2a[k];
-        }
-        if constexpr (I >= 2) {
-          q1 += c1 * sv1b[k];
-          q2 += c1 * sv2b[k];
-          w1 += c1 * sa1b[k];
-          w2 += c1 * sa2b[k];
-        }
-        q1r[k] = q1;
-        q2r[k] = q2;
-        w1r[k] = w1;
-        w2r[k] = w2;
-        const T u = qy0 + qy1 * lx[k] + qy2 * ly[k];
-        uq[k] = u;
-        const T f12 = k2n * (q1 - q2);
-        const T fc = k1v[k] * (u - q1);
-        const T r1 = m1n * w1 + beta * (fc - f12);
-        const T r2 = m2n * w2 + beta * (f12 - k3n * q2);
-        const T pp1 = g1[k] * r1 + g12[k] * r2;
-        p1[k] = pp1;
-        p2[k] = g12[k] * r1 + g2[k] * r2;
-        back[k] = acol[k] * pp1 - beta * fc;
-      }
-    }
+    // Columns the face presses: eliminated onto the impactor. Each
+    // column's back-substitution term first, then their sum in cell order.
+    stage_columns<I>(nc, c[0], c[1], qy[0], qy[1], qy[2], beta, k2n, k3n, m1n, m2n, cz1_.data(), cz2_.data(),
+                     cv1_.data(), cv2_.data(), sv1_[0].data(), sv2_[0].data(), sa1s_[0].data(), sa2s_[0].data(),
+                     sv1_[1].data(), sv2_[1].data(), sa1s_[1].data(), sa2s_[1].data(), lx, ly, k1v, g1, g12, g2, acol,
+                     q1r, q2r, w1r, w2r, uq, p1, p2, back);
     T ry[3] = {T(M_) * wy[0] + beta * T(M_ * g_), T(L_.inertia_x) * wy[1], T(L_.inertia_y) * wy[2]};
     for (int k = 0; k < nc; ++k) {
       ry[0] += back[k];
@@ -793,27 +851,8 @@ class Integrator {
     const double bi = I == 0 ? coef(2, 0) : (I == 1 ? coef(2, 1) : kGamma);
     const T y0 = y[0], y1 = y[1], y2 = y[2];
     if constexpr (!last) {
-      T* __restrict sv1 = sv1_[I].data();
-      T* __restrict sv2 = sv2_[I].data();
-      T* __restrict sa1s = sa1s_[I].data();
-      T* __restrict sa2s = sa2s_[I].data();
-      for (int k = 0; k < nc; ++k) {
-        const T u = y0 + y1 * lx[k] + y2 * ly[k];
-        const T V1 = p1[k] + sa1[k] * u;
-        const T V2 = p2[k] + sa2[k] * u;
-        // element 1's force at the stage, into the step's impulse
-        const T d = uq[k] + beta * u - (q1r[k] + beta * V1);
-        const T f = k1v[k] * d + c1v[k] * (u - V1);
-        if constexpr (I == 0) {
-          imp[k] = bi * f;
-        } else {
-          imp[k] = imp[k] + bi * f;
-        }
-        sv1[k] = V1;
-        sv2[k] = V2;
-        sa1s[k] = (V1 - w1r[k]) / beta;
-        sa2s[k] = (V2 - w2r[k]) / beta;
-      }
+      stage_velocities<I>(nc, bi, beta, y0, y1, y2, lx, ly, p1, p2, sa1, sa2, uq, q1r, w1r, w2r, k1v, c1v, imp,
+                          sv1_[I].data(), sv2_[I].data(), sa1s_[I].data(), sa2s_[I].data());
     } else {
       T* __restrict z1 = z1w_.data();
       T* __restrict z2 = z2w_.data();
@@ -905,7 +944,7 @@ class Integrator {
   std::vector<T> z1_, z2_, v1_, v2_, ab1_, ab2_;
   std::vector<T> z1w_, z2w_, v1w_, v2w_, ab1w_, ab2w_;
   std::vector<T> g1_, g2_;  // the kick's link forces per cell
-  std::vector<T> top_, top0_, d_, dd_, fr_, k1v_;
+  std::vector<T> top_, top0_, d_, dd_, k1v_;
   std::vector<char> in_, was_, unload_, cached_in_, cached_unload_;
   // Pressed (coupled) columns, packed by k: cell cj_[k], the stage matrix's
   // column factors and constants, the start state, the stages' values.
