@@ -38,7 +38,8 @@ Impact trial3() {
 // element k 3e7 N/m, r 6000 N s/m (near critical on element 1's cells: a
 // creep of 8 000 1/s, 35 600 steps before fast creeps were left to the
 // stiff limit), 6 element 1 alone at k 1e7 N/m, r 5600 N s/m (creep just
-// below the 2 000 1/s resolved: the most steps), 7 every element k 1e6 N/m,
+// below the 2 000 1/s resolved: the most steps while the creep limit held
+// for the whole run; now only while the face presses), 7 every element k 1e6 N/m,
 // r 3e4 N s/m (heavily damped: the largest error, see docs/models.md).
 MatParams corner(int which) {
   MatParams p = paper_table2(ModelKind::Model5);

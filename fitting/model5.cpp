@@ -591,6 +591,10 @@ static void choose_step(const Model5ParamsT<double>& q, const Model5Geometry& ge
   L.shear_gamma = gam;
   double dt_limit = geo.max_step_s;
   if (w2 > 0.0) dt_limit = std::min(dt_limit, geo.stability_fraction * 2.0 / std::sqrt(w2));
+  // While the face is clear of the mat every column is linear with constant
+  // coefficients and stepped exactly (Integrator::free_propagator): the
+  // creep limit below is for the implicit stages of the pressed columns.
+  const double dt_limit_free = dt_limit;
   // Accuracy: an overdamped element (r^2 > 4 k m on its node's mass) creeps
   // at the slow root of m s^2 + r s + k, 2 k / (r + sqrt(r^2 - 4 k m)); the
   // implicit stages resolve it to the stated accuracy with lambda dt <=
@@ -623,6 +627,8 @@ static void choose_step(const Model5ParamsT<double>& q, const Model5Geometry& ge
                       out_dt / n_sub));
   L.n_sub = static_cast<int>(n_sub);
   L.step_s = out_dt / static_cast<double>(n_sub);
+  L.n_sub_free = std::min(L.n_sub, std::max(1, static_cast<int>(std::ceil(out_dt / dt_limit_free - 1e-9))));
+  L.step_free_s = out_dt / static_cast<double>(L.n_sub_free);
   if (impact.first_output_s > 0.0) {
     L.n_first = std::max(1, static_cast<int>(std::ceil(impact.first_output_s / dt_limit - 1e-9)));
     L.first_step_s = impact.first_output_s / L.n_first;
