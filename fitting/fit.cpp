@@ -930,7 +930,7 @@ std::vector<Eigen::VectorXd> candidate_starts(const ParamSpace& space, const Fit
     // Multipliers of k_eff for the stiffer springs; the softest makes the
     // series come out at k_eff.
     const std::vector<std::vector<double>> spreads =
-        kj.size() == 3 ? std::vector<std::vector<double>>{{8.0, 40.0}, {30.0, 300.0}, {3.0, 12.0}}
+        kj.size() == 3 ? std::vector<std::vector<double>>{{8.0, 40.0}, {30.0, 300.0}, {3.0, 12.0}, {15.0, 15.0}}
                        : std::vector<std::vector<double>>{{10.0}, {100.0}, {3.0}};
     std::vector<int> perm(kj.size());
     std::iota(perm.begin(), perm.end(), 0);
