@@ -741,6 +741,21 @@ class Integrator {
     stage<2>(h, beta, start, iv, ia);
   }
 
+  // A pressed column's stage values from the impactor's (y0 heave, y1, y2
+  // tilt rates): its layers' velocities V1, V2 and element 1's force f
+  // (the middle stages and the last share it).
+  __attribute__((always_inline)) static inline void column_values(
+      int k, double beta, const T& y0, const T& y1, const T& y2, const double* __restrict lx,
+      const double* __restrict ly, const T* __restrict p1, const T* __restrict p2, const T* __restrict sa1,
+      const T* __restrict sa2, const T* __restrict uq, const T* __restrict q1r, const T* __restrict k1v,
+      const T* __restrict c1v, T& V1, T& V2, T& f) {
+    const T u = y0 + y1 * lx[k] + y2 * ly[k];
+    V1 = p1[k] + sa1[k] * u;
+    V2 = p2[k] + sa2[k] * u;
+    const T d = uq[k] + beta * u - (q1r[k] + beta * V1);
+    f = k1v[k] * d + c1v[k] * (u - V1);
+  }
+
   // The pressed columns' part of stage I before the impactor's solve:
   // their Qr, Vr, the 2 x 2 elimination and the back-substitution term
   // (restrict arguments, as the kernels above).
@@ -796,11 +811,8 @@ class Integrator {
                                const T* __restrict k1v, const T* __restrict c1v, T* __restrict imp,
                                T* __restrict sv1, T* __restrict sv2, T* __restrict sa1s, T* __restrict sa2s) {
     for (int k = 0; k < nc; ++k) {
-      const T u = y0 + y1 * lx[k] + y2 * ly[k];
-      const T V1 = p1[k] + sa1[k] * u;
-      const T V2 = p2[k] + sa2[k] * u;
-      const T d = uq[k] + beta * u - (q1r[k] + beta * V1);
-      const T f = k1v[k] * d + c1v[k] * (u - V1);
+      T V1, V2, f;
+      column_values(k, beta, y0, y1, y2, lx, ly, p1, p2, sa1, sa2, uq, q1r, k1v, c1v, V1, V2, f);
       if constexpr (I == 0) {
         imp[k] = bi * f;
       } else {
@@ -878,11 +890,8 @@ class Integrator {
       T* __restrict v2 = v2w_.data();
       const int* __restrict cj = cj_.data();
       for (int k = 0; k < nc; ++k) {
-        const T u = y0 + y1 * lx[k] + y2 * ly[k];
-        const T V1 = p1[k] + sa1[k] * u;
-        const T V2 = p2[k] + sa2[k] * u;
-        const T d = uq[k] + beta * u - (q1r[k] + beta * V1);
-        const T f = k1v[k] * d + c1v[k] * (u - V1);
+        T V1, V2, f;
+        column_values(k, beta, y0, y1, y2, lx, ly, p1, p2, sa1, sa2, uq, q1r, k1v, c1v, V1, V2, f);
         imp[k] = imp[k] + bi * f;
         const int j = cj[k];
         z1[j] = q1r[k] + beta * V1;
