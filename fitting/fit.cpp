@@ -861,6 +861,13 @@ Optimum run_ceres(const std::vector<Prepared>& preps, const ParamSpace& space, c
   // start, 169 Jacobians and 231 simulations in 42 iterations against 37
   // and 42 without, ending at a lower cost.
   so.line_search_interpolation_type = ceres::QUADRATIC;
+  // At most 3 trial points (Ceres' default is 20): when the projected step
+  // gives no sufficient decrease the search shrank it up to 20 times, each
+  // a simulation, and the line search took 44 % of a loop's time; after 3
+  // the trust region judges the step itself. Measured on 67 unseen
+  // sessions: the same effects named with 3, 6 and 20, the loop's mean
+  // run 1.30 -> 1.06 s.
+  so.max_num_line_search_step_size_iterations = 3;
   if (o.model == ModelKind::Model5) so.max_num_line_search_step_size_iterations = 0;
   ceres::Solver::Summary summary;
   ceres::Solve(so, problem.get(), &summary);
