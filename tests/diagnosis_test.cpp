@@ -382,6 +382,29 @@ TEST(Diagnosis, AStuckBaselineIsNotCreditedToAnEffect) {
   EXPECT_FALSE(r.unexplained) << r.report();
 }
 
+// Session s016 of the same archive (seed 715): stiffening and a weak
+// Maxwell arm (27 kN/m, tau 28 ms, beside k1 80 kN/m). The arm's stiffness
+// had the series springs' floor (0.3 k_eff, 32 kN/m here), so its refit
+// ended on the bound and the arm was not named.
+TEST(Diagnosis, AWeakMaxwellArmBesideStiffeningIsNamed) {
+  const auto s = independent_session(715);
+  std::vector<std::string> truth;
+  for (const auto& e : s.truth.effects) truth.push_back(e.name);
+  std::sort(truth.begin(), truth.end());
+  ASSERT_EQ(truth, (std::vector<std::string>{"rate_dependence", "stiffness_nonlinearity"}));
+  const DiagnosisResult r = diagnose(s.session);
+  std::vector<std::string> named;
+  for (const auto& e : r.effects) named.push_back(e.name);
+  std::sort(named.begin(), named.end());
+  EXPECT_EQ(named, truth) << r.report();
+  EXPECT_FALSE(r.unexplained) << r.report();
+  const Effect* arm = r.find("rate_dependence");
+  ASSERT_NE(arm, nullptr);
+  // Within 15 % of the true arm (27 097 N/m, 28.4 ms).
+  EXPECT_NEAR(estimate(*arm, "maxwell_k_n_m") / 27097.1, 1.0, 0.15) << r.report();
+  EXPECT_NEAR(estimate(*arm, "maxwell_tau_s") / 0.0284, 1.0, 0.15) << r.report();
+}
+
 TEST(DiagnosisJson, MapsOntoTheSpec) {
   DiagnosisResult r;
   r.baseline_model = "model4";
