@@ -466,6 +466,70 @@ std::optional<fitting::FitResult> better_baseline(const std::vector<fitting::Tri
   return best;
 }
 
+// The backward step of the selection: with two or more effects named, an
+// earlier one that later ones made redundant is taken out again. Each is
+// judged as if it were added to the model without it (the same verdict as
+// a candidate). The model without it is refitted from the current optimum
+// with its term removed (one Levenberg-Marquardt run: conservative, since a
+// poorer local optimum keeps the effect). An unloading damping that stood
+// in for stiffening and a Maxwell arm, before the pair that explains both
+// was found, was left named.
+void drop_redundant(const std::vector<fitting::TrialData>& acc, std::vector<const EffectCandidate*>& named,
+                    fitting::FitResult& current, fitting::FitOptions& current_options, HeldOutErrors& before,
+                    const MatStageOptions& options, double declared_m1_kg, MatDiagnosis& out) {
+  if (named.size() < 2) return;
+  for (size_t i = 0; i < named.size() && named.size() >= 2;) {
+    const EffectCandidate* c = named[i];
+    fitting::FitOptions o = current_options;
+    std::vector<std::string> keep;
+    for (const auto& f : o.free_effects)
+      if (std::find(c->free.begin(), c->free.end(), f) == c->free.end()) keep.push_back(f);
+    o.free_effects = keep;
+    MatParams p = current.params;
+    for (const auto& f : c->free) {
+      if (f == "k1_cubic_n_m3") p.k1_cubic_n_m3 = 0.0;
+      if (f == "r1_unload_n_s_m") p.r1_unload_n_s_m = -1.0;
+      if (f == "k1_unload_ratio") p.k1_unload_ratio = 0.0;
+      if (f == "maxwell_k_n_m" || f == "maxwell_tau_s") p.maxwell_k_n_m = p.maxwell_tau_s = 0.0;
+    }
+    if (c->masses) {
+      o.masses_free = false;
+      p.m1_kg = o.m1_kg;
+      p.m2_kg = o.m2_kg;
+    }
+    o.initial = p;
+    o.starts = 1;
+    o.protect_initial = false;
+    o.threads = 1;
+    std::optional<fitting::FitResult> without;
+    try {
+      without = fitting::fit(acc, o);
+    } catch (const std::exception&) {
+    }
+    if (!without) { ++i; continue; }
+    const HeldOutErrors e_without = held_out_errors(*without, acc, o);
+    Trial t;
+    t.adds = {c};
+    t.fit = current;
+    t.errors = before;
+    const std::string why = verdict(t, e_without, training_of(*without), options, declared_m1_kg);
+    if (why.empty()) { ++i; continue; }
+    // Not supported beside the others: out.
+    const auto it = std::find_if(out.effects.begin(), out.effects.end(),
+                                 [&](const Effect& e) { return e.stage == "mat" && e.name == c->name; });
+    if (it != out.effects.end()) out.effects.erase(it);
+    out.rejected.push_back({"mat", c->name,
+                            c->variant + ": named in an earlier round, then made redundant by the later effects; "
+                                         "added back to the model without it: " + why});
+    current = std::move(*without);
+    current_options = o;
+    current_options.initial = MatParams{};
+    current_options.starts = options.fit.starts;
+    before = e_without;
+    named.erase(named.begin() + static_cast<std::ptrdiff_t>(i));
+  }
+}
+
 }  // namespace
 
 MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const MatStageOptions& options) {
@@ -496,6 +560,7 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
   const auto cands = library(options.candidates);
   std::vector<bool> used(cands.size(), false);
 
+  std::vector<const EffectCandidate*> named;  // the candidates behind out.effects, in order
   for (int round = 0; round < options.max_effects; ++round) {
     const double f0 = before.mean_force_sd(), k0 = before.mean_impactor_sd();
     if (f0 <= gate && k0 <= gate) break;  // at the noise floor: nothing left to explain
@@ -567,6 +632,7 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
     }
 
     name_effects(out, kept, before, cands, used);
+    for (const auto* c : kept.adds) named.push_back(c);
     current = std::move(*kept.fit);
     current_options = kept.options;
     current_options.initial = MatParams{};
@@ -575,6 +641,8 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
     current_options.threads = base.threads;
     before = kept.errors;
   }
+
+  drop_redundant(acc, named, current, current_options, before, options, base.m1_kg, out);
 
   out.params_after = current.params;
   out.options_after = current_options;
