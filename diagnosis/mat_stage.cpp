@@ -430,6 +430,23 @@ void name_effects(MatDiagnosis& out, const Trial& kept, const HeldOutErrors& bef
   }
 }
 
+// One Levenberg-Marquardt run of `model` from `start` alone (no multi-
+// start), on one thread; empty when the fit fails. What the loop's two
+// nested-model checks below refit with.
+std::optional<fitting::FitResult> warm_refit(const std::vector<fitting::TrialData>& acc,
+                                             const fitting::FitOptions& model, const MatParams& start) {
+  fitting::FitOptions o = model;
+  o.initial = start;
+  o.starts = 1;
+  o.protect_initial = false;
+  o.threads = 1;
+  try {
+    return fitting::fit(acc, o);
+  } catch (const std::exception&) {
+    return std::nullopt;
+  }
+}
+
 // The current model refitted from a candidate's optimum with the
 // candidate's own terms taken out (one Levenberg-Marquardt run). When the
 // effect-free model fits better from there than from its own multi-start,
@@ -450,18 +467,10 @@ std::optional<fitting::FitResult> better_baseline(const std::vector<fitting::Tri
     p.k1_unload_ratio = c.k1_unload_ratio;
     p.m1_kg = c.m1_kg;
     p.m2_kg = c.m2_kg;
-    fitting::FitOptions o = current_options;
-    o.initial = p;
-    o.starts = 1;  // a warm start alone
-    o.protect_initial = false;
-    o.threads = 1;
-    try {
-      fitting::FitResult r = fitting::fit(acc, o);
-      // Beyond chance: twice the cost drop (noise units) above chi-square(1)'s 95 % point.
-      const double ref = best ? best->cost : current.cost;
-      if (2.0 * (ref - r.cost) > 3.84) best = std::move(r);
-    } catch (const std::exception&) {
-    }
+    std::optional<fitting::FitResult> r = warm_refit(acc, current_options, p);
+    // Beyond chance: twice the cost drop (noise units) above chi-square(1)'s 95 % point.
+    const double ref = best ? best->cost : current.cost;
+    if (r && 2.0 * (ref - r->cost) > 3.84) best = std::move(r);
   }
   return best;
 }
@@ -497,15 +506,7 @@ void drop_redundant(const std::vector<fitting::TrialData>& acc, std::vector<cons
       p.m1_kg = o.m1_kg;
       p.m2_kg = o.m2_kg;
     }
-    o.initial = p;
-    o.starts = 1;
-    o.protect_initial = false;
-    o.threads = 1;
-    std::optional<fitting::FitResult> without;
-    try {
-      without = fitting::fit(acc, o);
-    } catch (const std::exception&) {
-    }
+    std::optional<fitting::FitResult> without = warm_refit(acc, o, p);
     if (!without) { ++i; continue; }
     const HeldOutErrors e_without = held_out_errors(*without, acc, o);
     Trial t;
@@ -522,9 +523,7 @@ void drop_redundant(const std::vector<fitting::TrialData>& acc, std::vector<cons
                             c->variant + ": named in an earlier round, then made redundant by the later effects; "
                                          "added back to the model without it: " + why});
     current = std::move(*without);
-    current_options = o;
-    current_options.initial = MatParams{};
-    current_options.starts = options.fit.starts;
+    current_options = o;  // the model without it, its search options as before
     before = e_without;
     named.erase(named.begin() + static_cast<std::ptrdiff_t>(i));
   }
@@ -574,18 +573,16 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
     // A candidate that reached a basin the current model's own search
     // missed: the current model moves there, and the candidates are judged
     // against it (their refits are the same: each is its own multi-start).
-    {
-      if (auto better = better_baseline(acc, current_options, current, tries)) {
-        out.notes.push_back(fmt::format(
-            "mat: the model without the candidate's term, refitted from a candidate's optimum, fits better than its "
-            "own multi-start did (cost {:.1f} -> {:.1f}): it replaces the {} the candidates are judged against",
-            current.cost, better->cost, out.effects.empty() ? "baseline" : "current model"));
-        current = std::move(*better);
-        before = held_out_errors(current, acc, base);
-        if (out.effects.empty()) {
-          out.params_before = current.params;
-          out.error_before = error_set(before);
-        }
+    if (auto better = better_baseline(acc, current_options, current, tries)) {
+      out.notes.push_back(fmt::format(
+          "mat: the model without the candidate's term, refitted from a candidate's optimum, fits better than its "
+          "own multi-start did (cost {:.1f} -> {:.1f}): it replaces the {} the candidates are judged against",
+          current.cost, better->cost, out.effects.empty() ? "baseline" : "current model"));
+      current = std::move(*better);
+      before = held_out_errors(current, acc, base);
+      if (out.effects.empty()) {
+        out.params_before = current.params;
+        out.error_before = error_set(before);
       }
     }
 

@@ -360,6 +360,15 @@ synth::SyntheticSession independent_session(std::uint64_t seed) {
   return synth::make_session(o);
 }
 
+// The names of effects (injected or named), sorted.
+template <typename E>
+std::vector<std::string> sorted_names(const std::vector<E>& effects) {
+  std::vector<std::string> names;
+  for (const auto& e : effects) names.push_back(e.name);
+  std::sort(names.begin(), names.end());
+  return names;
+}
+
 TEST(Diagnosis, CleanMatWithEqualLowerLayersIsFittedToTheNoise) {
   const auto s = independent_session(701);
   ASSERT_TRUE(s.truth.effects.empty());
@@ -370,14 +379,10 @@ TEST(Diagnosis, CleanMatWithEqualLowerLayersIsFittedToTheNoise) {
 
 TEST(Diagnosis, AStuckBaselineIsNotCreditedToAnEffect) {
   const auto s = independent_session(702);
-  std::vector<std::string> truth;
-  for (const auto& e : s.truth.effects) truth.push_back(e.name);
-  std::sort(truth.begin(), truth.end());
+  const std::vector<std::string> truth = sorted_names(s.truth.effects);
   ASSERT_EQ(truth, (std::vector<std::string>{"baseline_drift", "force_scale"}));
   const DiagnosisResult r = diagnose(s.session);
-  std::vector<std::string> named;
-  for (const auto& e : r.effects) named.push_back(e.name);
-  std::sort(named.begin(), named.end());
+  const std::vector<std::string> named = sorted_names(r.effects);
   EXPECT_EQ(named, truth) << r.report();
   EXPECT_FALSE(r.unexplained) << r.report();
 }
@@ -388,14 +393,10 @@ TEST(Diagnosis, AStuckBaselineIsNotCreditedToAnEffect) {
 // ended on the bound and the arm was not named.
 TEST(Diagnosis, AWeakMaxwellArmBesideStiffeningIsNamed) {
   const auto s = independent_session(715);
-  std::vector<std::string> truth;
-  for (const auto& e : s.truth.effects) truth.push_back(e.name);
-  std::sort(truth.begin(), truth.end());
+  const std::vector<std::string> truth = sorted_names(s.truth.effects);
   ASSERT_EQ(truth, (std::vector<std::string>{"rate_dependence", "stiffness_nonlinearity"}));
   const DiagnosisResult r = diagnose(s.session);
-  std::vector<std::string> named;
-  for (const auto& e : r.effects) named.push_back(e.name);
-  std::sort(named.begin(), named.end());
+  const std::vector<std::string> named = sorted_names(r.effects);
   EXPECT_EQ(named, truth) << r.report();
   EXPECT_FALSE(r.unexplained) << r.report();
   const Effect* arm = r.find("rate_dependence");
@@ -413,13 +414,9 @@ TEST(Diagnosis, AWeakMaxwellArmBesideStiffeningIsNamed) {
 // the damping stayed named until the selection got its backward step.
 TEST(Diagnosis, AnEffectMadeRedundantByLaterOnesIsTakenOut) {
   const auto s = independent_session(807);
-  std::vector<std::string> truth;
-  for (const auto& e : s.truth.effects) truth.push_back(e.name);
-  std::sort(truth.begin(), truth.end());
+  const std::vector<std::string> truth = sorted_names(s.truth.effects);
   const DiagnosisResult r = diagnose(s.session);
-  std::vector<std::string> named;
-  for (const auto& e : r.effects) named.push_back(e.name);
-  std::sort(named.begin(), named.end());
+  const std::vector<std::string> named = sorted_names(r.effects);
   EXPECT_EQ(named, truth) << r.report();
   EXPECT_EQ(r.find("hysteresis"), nullptr) << r.report();
   EXPECT_FALSE(r.unexplained) << r.report();
