@@ -179,7 +179,10 @@ fitting::TrialData fitting_trial(const Manifest& manifest, const trial::TrialRes
   data.force_noise_n = result.force_noise_n;
   data.marker_noise_m = result.freefall_rms_m;
   const auto& s = result.series;
-  // The surface markers' height at rest: their mean before contact.
+  // The surface markers' height at rest: their mean before contact. The
+  // impactor's travel is already measured from the mat top the cameras see
+  // (trial.h: contact height), which cancels the calibration's height error
+  // near the mat.
   double rest_sum = 0.0;
   int rest_n = 0;
   for (Eigen::Index i = 0; i < s.t_s.size(); ++i) {
@@ -189,15 +192,6 @@ fitting::TrialData fitting_trial(const Manifest& manifest, const trial::TrialRes
     }
   }
   const double surface_rest_m = rest_n > 0 ? rest_sum / rest_n : manifest.forceplate.mat_top_z_m;
-  // Impactor travel from the mat top as the same cameras see it: the face
-  // and the surface markers at rest share the calibration's height error (a
-  // lens-distortion fit leaves about 1 mm at the mat top), which the
-  // difference cancels; the manifest's surveyed mat_top_z_m does not share
-  // it. Only for a small correction from enough frames: a larger gap means
-  // the markers are not on the surface, and the manifest's height is kept.
-  const double top_m = manifest.forceplate.mat_top_z_m;
-  const double reference_shift_m =
-      (rest_n >= 5 && std::abs(surface_rest_m - top_m) <= 0.005) ? surface_rest_m - top_m : 0.0;
   // From a little before the contact estimate: the fit places each trial's
   // contact on the force clock itself (fitting/fit.h).
   const double lead_s = 0.005;
@@ -214,7 +208,7 @@ fitting::TrialData fitting_trial(const Manifest& manifest, const trial::TrialRes
     const Eigen::Index i = keep[k];
     data.t_s[k] = s.t_s[i] - result.contact_time_s;
     data.grf_n[k] = s.fz_n[i];
-    data.impactor_m[k] = s.deformation_m[i] + reference_shift_m;
+    data.impactor_m[k] = s.deformation_m[i];
     data.surface_m[k] = surface_rest_m - s.surface_z_m[i];
   }
   return data;

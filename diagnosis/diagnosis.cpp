@@ -122,7 +122,8 @@ std::vector<PlateTrial> plate_trials(const SessionState& state, double offset_s)
     p.end_time_s = f.end_time_s;
     p.quiet_end_s = std::min(f.trigger_time_s, f.contact_time_s) - state.quiet_guard_s;
     p.impact_velocity_m_s = tr.result.impact_velocity_m_s;
-    p.mat_top_z_m = state.mat_top_z_m;
+    // The mat top the cameras see (trial.h: contact height), as the face is.
+    p.mat_top_z_m = std::isfinite(tr.result.contact_height_m) ? tr.result.contact_height_m : state.mat_top_z_m;
     p.max_deformation_time_s = tr.result.max_deformation_time_s;
     const Eigen::VectorXd z = face_heights(tr.trajectories, state.base_markers, state.base_marker_height_m);
     p.face_z_m = z;

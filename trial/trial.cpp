@@ -543,20 +543,46 @@ void impulse_checks(const forceplate::ForceTrial& force, const TrialOptions& o, 
   }
 }
 
+// The mat top as the cameras see it: the surface markers' mean height over
+// the frames where every one is seen, before the face first comes within
+// 20 mm of the surveyed top (after the rebound the mat may still be
+// recovering); NaN when fewer than min_rest_frames such frames or
+// the mean is more than max_surface_reference_m from mat_top_z_m (see the
+// header: contact height).
+double surface_rest_height_m(const Eigen::VectorXd& h, const Eigen::VectorXd& surf, const TrialOptions& o) {
+  constexpr double kClear_m = 0.020;
+  double sum = 0.0;
+  int n = 0;
+  for (Eigen::Index i = 0; i < surf.size() && i < h.size(); ++i) {
+    if (std::isfinite(h[i]) && h[i] < o.mat_top_z_m + kClear_m) break;  // the approach: at rest only before it
+    if (std::isfinite(surf[i])) {
+      sum += surf[i];
+      ++n;
+    }
+  }
+  if (n < o.min_rest_frames) return kNaN;
+  const double rest = sum / n;
+  return std::abs(rest - o.mat_top_z_m) <= o.max_surface_reference_m ? rest : kNaN;
+}
+
 TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string& force_error,
-                         const reconstruction::Trajectories& markers, const TrialOptions& o) {
-  o.validate();
-  check_inputs(markers, o);
+                         const reconstruction::Trajectories& markers, const TrialOptions& given) {
+  given.validate();
+  check_inputs(markers, given);
   TrialResult res;
-  res.id = o.id;
+  res.id = given.id;
   std::vector<std::string> reasons;
   if (!force_error.empty()) reasons.push_back(force_error);
 
-  const VideoClock clock{o.frame_rate_hz, 1.0 / o.frame_rate_hz, o.trigger_frame};
-  const double top = o.mat_top_z_m;
+  const VideoClock clock{given.frame_rate_hz, 1.0 / given.frame_rate_hz, given.trigger_frame};
   // Face height and surface height per frame.
-  const Eigen::VectorXd h = mean_height(markers, o.base_markers, o.base_marker_height_m);
-  const Eigen::VectorXd surf = mean_height(markers, o.surface_markers, 0.0);
+  const Eigen::VectorXd h = mean_height(markers, given.base_markers, given.base_marker_height_m);
+  const Eigen::VectorXd surf = mean_height(markers, given.surface_markers, 0.0);
+  // Everything below measures from the contact height.
+  TrialOptions o = given;
+  if (const double rest = surface_rest_height_m(h, surf, given); std::isfinite(rest)) o.mat_top_z_m = rest;
+  res.contact_height_m = o.mat_top_z_m;
+  const double top = o.mat_top_z_m;
 
   if (force) {
     res.contact_time_s = force->contact_time_s;
@@ -616,6 +642,8 @@ void TrialOptions::validate() const {
   check::at_least(w, "trigger_frame", trigger_frame, 0);
   check::finite(w, "base_marker_height_m", base_marker_height_m);
   check::finite(w, "mat_top_z_m", mat_top_z_m);
+  check::non_negative(w, "max_surface_reference_m", max_surface_reference_m);
+  check::at_least(w, "min_rest_frames", min_rest_frames, 1);
   check::in_range(w, "max_tilt_deg", max_tilt_deg, 0.0, 90.0);
   check::positive(w, "freefall_window_s", freefall_window_s);
   check::non_negative(w, "freefall_clearance_m", freefall_clearance_m);

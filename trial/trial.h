@@ -20,8 +20,9 @@
 //   over the face heights of the frames in freefall_window_s before the
 //   face reaches the mat top (frames within freefall_clearance_m of it left
 //   out; one pass dropping residuals beyond 4 robust SDs). The contact
-//   instant is where the fitted path reaches mat_top_z_m (sub-frame); the
-//   downward speed there is s = sqrt(v0^2 - 2 g (mat_top - z0)). Its 95 %
+//   instant is where the fitted path reaches the contact height (below;
+//   sub-frame); the downward speed there is
+//   s = sqrt(v0^2 - 2 g (contact_height - z0)). Its 95 %
 //   interval: residual variance times (X'X)^-1 propagated through s by the
 //   delta method (ds/dz0 = g/s, ds/dv0 = v0/s), Student t with n - 2
 //   degrees of freedom.
@@ -29,7 +30,7 @@
 //   free-fall fit's arrival at the mat top (video) against the plate's
 //   contact onset (forceplate::ForceTrial::contact_time_s). Its precision is
 //   the fit's (about 0.05 ms at 0.5 mm marker noise); its accuracy rests on
-//   mat_top_z_m (1 mm there is 0.2 ms at 5 m/s) and on the plate's onset
+//   the contact height (1 mm there is 0.2 ms at 5 m/s) and on the plate's onset
 //   being the instant the face touches the mat. With a massless mat it is
 //   (0.02 ms in tests); when the mat's top layer has mass the plate force
 //   starts as t^2..t^3 and stays inside the noise longer, so the onset and
@@ -45,7 +46,18 @@
 //   not use mat_top_z_m or the onset, but the plate reads the mat's force,
 //   which differs from the impactor's by the mat's accelerated mass, so it is
 //   a consistency check, not the reported value.
-// - Max deformation: mat_top_z_m minus the lowest face height during contact,
+// - Contact height: the mat top as the same cameras see it. When the surface
+//   markers are seen at rest (their mean over at least min_rest_frames
+//   frames before the face first comes within 20 mm of the mat) within
+//   max_surface_reference_m of mat_top_z_m, their rest height replaces
+//   mat_top_z_m for the contact instant, the impact velocity, the
+//   deformation and the series: the face and the surface share the
+//   calibration's height error near the mat (a lens-distortion fit leaves
+//   1-2 mm there: 0.2-0.4 ms of contact instant at 5 m/s, seen as a travel
+//   residual proportional to the face's velocity), which the surveyed
+//   height does not. A larger gap means the markers are not on the
+//   surface; the manifest's height is kept (TrialResult::contact_height_m).
+// - Max deformation: the contact height minus the lowest face height during contact,
 //   from a quadratic fitted to the frames within
 //   deformation_fit_half_window_s of the lowest one.
 // - Tilt: per frame, with two base markers the base line's angle from
@@ -120,6 +132,8 @@ struct TrialOptions {
   std::vector<std::string> point_names;   // optional, for messages
   double base_marker_height_m = 0.0;      // base markers above the contact face
   double mat_top_z_m = 0.205;             // undeformed mat top, lab frame
+  double max_surface_reference_m = 0.005; // surface markers' rest height used within this of it
+  int min_rest_frames = 5;                // ... seen at rest in at least this many frames
   double max_tilt_deg = 6.0;              // the paper's trials: 2.6 +- 0.87 deg
   double freefall_window_s = 0.060;
   double freefall_clearance_m = 0.002;
@@ -175,7 +189,7 @@ struct Series {
   Eigen::VectorXd t_s;
   Eigen::VectorXd fz_n;
   Eigen::VectorXd impactor_z_m;   // contact face height, lab frame; NaN across video gaps
-  Eigen::VectorXd deformation_m;  // mat_top_z_m - impactor_z_m
+  Eigen::VectorXd deformation_m;  // contact_height_m - impactor_z_m
   Eigen::VectorXd surface_z_m;    // mean of the surface markers
 };
 
@@ -190,6 +204,7 @@ struct TrialResult {
   double peak_force_n = std::numeric_limits<double>::quiet_NaN();
   double time_to_peak_s = std::numeric_limits<double>::quiet_NaN();  // from contact
   double contact_time_s = std::numeric_limits<double>::quiet_NaN();  // force clock
+  double contact_height_m = std::numeric_limits<double>::quiet_NaN();  // the mat top used (see above)
   double video_offset_s = std::numeric_limits<double>::quiet_NaN();  // video clock minus force clock
   // When the mat fit placed the contact on the force clock (the main run):
   // its standard error, and the estimate from the plate's onset it replaced.
