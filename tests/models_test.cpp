@@ -111,9 +111,29 @@ TEST(Models, ExactIntegratorMatchesAFineStepReference) {
   }
 }
 
-// With an effect on, the RK4 path: refining its step changes nothing
-// beyond 0.1 % of the peak, and a negligible effect reproduces the linear
-// model.
+// A Model 4 chain with the paper's layer masses (2.44 kg over 3.66 kg).
+MatParams chain(double k1, double k2, double k3, double r1, double r2, double r3) {
+  MatParams p;
+  p.k1_n_m = k1; p.k2_n_m = k2; p.k3_n_m = k3;
+  p.r1_n_s_m = r1; p.r2_n_s_m = r2; p.r3_n_s_m = r3;
+  p.m1_kg = 2.44; p.m2_kg = 3.66;
+  return p;
+}
+
+// The largest force difference of the default RK4 path from RK4 at a 1 us
+// step, over the reference's peak.
+double rk4_force_error_of_peak(const MatParams& p, const Impact& imp) {
+  SimulateOptions fine;
+  fine.method = SimulateOptions::Method::RK4;
+  fine.rk4_max_step_s = 1e-6;
+  const Simulation a = simulate(ModelKind::Model4, p, imp);
+  const Simulation b = simulate(ModelKind::Model4, p, imp, fine);
+  return (a.grf_n - b.grf_n).cwiseAbs().maxCoeff() / b.grf_n.maxCoeff();
+}
+
+// With an effect on, the RK4 path at its default step is within 0.01 % of
+// the peak of a 1 us reference, and a negligible effect reproduces the
+// linear model.
 TEST(Models, Rk4PathConvergesWithEffects) {
   MatParams p = paper_table2(ModelKind::Model4);
   p.k1_cubic_n_m3 = 2e7;
@@ -121,47 +141,29 @@ TEST(Models, Rk4PathConvergesWithEffects) {
   p.maxwell_k_n_m = 20000.0;
   p.maxwell_tau_s = 0.01;
   const Impact imp = impact_at(5.25, 0.12);
-  SimulateOptions fine;
-  fine.method = SimulateOptions::Method::RK4;
-  fine.rk4_max_step_s = 1e-6;
-  const Simulation a = simulate(ModelKind::Model4, p, imp);
-  const Simulation b = simulate(ModelKind::Model4, p, imp, fine);
-  const double peak = b.grf_n.maxCoeff();
   // Measured 1e-6 of the peak at the default 0.25 ms step.
-  EXPECT_LT((a.grf_n - b.grf_n).cwiseAbs().maxCoeff(), 1e-4 * peak);
+  EXPECT_LT(rk4_force_error_of_peak(p, imp), 1e-4);
 
   // A stiffening mat with stiff lower layers and light damping (an unseen
   // session's truth, 6.07 m/s): measured 5e-6 of the peak.
-  MatParams stiff;
-  stiff.k1_n_m = 21118.0; stiff.k2_n_m = 1150764.0; stiff.k3_n_m = 963288.0;
-  stiff.r1_n_s_m = 69.9; stiff.r2_n_s_m = 297.0; stiff.r3_n_s_m = 182.0;
-  stiff.m1_kg = 2.44; stiff.m2_kg = 3.66;
+  MatParams stiff = chain(21118.0, 1150764.0, 963288.0, 69.9, 297.0, 182.0);
   stiff.k1_cubic_n_m3 = 7.1e6;
-  const Impact fast = impact_at(6.07, 0.15);
-  const Simulation c = simulate(ModelKind::Model4, stiff, fast);
-  const Simulation d = simulate(ModelKind::Model4, stiff, fast, fine);
-  EXPECT_LT((c.grf_n - d.grf_n).cwiseAbs().maxCoeff(), 1e-4 * d.grf_n.maxCoeff());
-  EXPECT_LT((c.impactor_m - d.impactor_m).cwiseAbs().maxCoeff(), 1e-6);
+  EXPECT_LT(rk4_force_error_of_peak(stiff, impact_at(6.07, 0.15)), 1e-4);
 
   // A heavily damped top element beside a stiff, fast Maxwell arm: the
   // step is set by the decay (h d <= 1), not by the oscillation; measured
   // 2e-6 of the peak.
-  MatParams damped;
-  damped.k1_n_m = 75000.0; damped.k2_n_m = 9e5; damped.k3_n_m = 7.5e5;
-  damped.r1_n_s_m = 3e4; damped.r2_n_s_m = 380.0; damped.r3_n_s_m = 240.0;
-  damped.m1_kg = 2.44; damped.m2_kg = 3.66;
+  MatParams damped = chain(75000.0, 9e5, 7.5e5, 3e4, 380.0, 240.0);
   damped.maxwell_k_n_m = 1e6;
   damped.maxwell_tau_s = 0.002;
-  const Impact slow = impact_at(5.0, 0.15);
-  const Simulation e = simulate(ModelKind::Model4, damped, slow);
-  const Simulation f = simulate(ModelKind::Model4, damped, slow, fine);
-  EXPECT_LT((e.grf_n - f.grf_n).cwiseAbs().maxCoeff(), 1e-4 * f.grf_n.maxCoeff());
+  EXPECT_LT(rk4_force_error_of_peak(damped, impact_at(5.0, 0.15)), 1e-4);
 
   // Cubic hardening raises the peak force.
   const Simulation lin = simulate(ModelKind::Model4, paper_table2(ModelKind::Model4), imp);
+  const double peak = lin.grf_n.maxCoeff();
   MatParams hard = paper_table2(ModelKind::Model4);
   hard.k1_cubic_n_m3 = 2e7;
-  EXPECT_GT(simulate(ModelKind::Model4, hard, imp).grf_n.maxCoeff(), 1.02 * lin.grf_n.maxCoeff());
+  EXPECT_GT(simulate(ModelKind::Model4, hard, imp).grf_n.maxCoeff(), 1.02 * peak);
   // Hysteresis with the same unloading damping is the linear model.
   MatParams same = paper_table2(ModelKind::Model4);
   same.r1_unload_n_s_m = same.r1_n_s_m;
@@ -175,10 +177,7 @@ TEST(Models, Rk4PathConvergesWithEffects) {
 // few steps (mk h / r1 = 26); backward Euler on both stays finite, and the
 // fine-step reference agrees.
 TEST(Models, StiffMaxwellArmRelaxesAfterSeparation) {
-  MatParams p;
-  p.k1_n_m = 56146.9; p.k2_n_m = 81015.5; p.k3_n_m = 815220.0;
-  p.r1_n_s_m = 17.1624; p.r2_n_s_m = 258.166; p.r3_n_s_m = 101.215;
-  p.m1_kg = 2.44; p.m2_kg = 3.66;
+  MatParams p = chain(56146.9, 81015.5, 815220.0, 17.1624, 258.166, 101.215);
   p.maxwell_k_n_m = 1.80211e6;
   p.maxwell_tau_s = 0.00163912;
   Impact imp = impact_at(4.7, 0.5);
