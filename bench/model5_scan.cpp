@@ -341,6 +341,7 @@ int main(int argc, char** argv) {
     Model5Geometry old = g;
     old.creep_slow_load = 0.0;
     old.slow_step_load = 0.0;
+    old.slow_step_factor = 1.0;
     const Model5Result a = simulate_model5_detailed(p, old, trial3());
     const Model5Result b = simulate_model5_detailed(p, g, trial3());
     std::printf("vs slow-load rules off: %ld -> %ld steps, max |GRF diff| %.4f %% of peak\n", a.steps, b.steps,

@@ -134,9 +134,9 @@
 // with the same cells pressed, drops the creep limit; and from 0.1 s on
 // (long contacts only: a typical impact is over by then, so its stepping,
 // and the fitter's derivatives around it, is as before), one with at most
-// 1e-3 of it (3e-3 where elements 2 and 3 are lightly damped) steps at
-// twice max_step_s. The decisions use scalar parts (the same steps for a
-// Jet). The first output interval is stepped 8 times finer (the face
+// 1e-3 of it steps at twice max_step_s, as does every pressed interval
+// where elements 2 and 3 are lightly damped (r / m <= 3000 1/s). The
+// decisions use scalar parts (the same steps for a Jet). The first output interval is stepped 8 times finer (the face
 // lands at full speed on light cells). At the paper's parameters: 0.1
 // ms, 3070 steps per 0.3 s (unchanged); over the fitter's bounds (k
 // 2e3..3e7 N/m, r 3..3e4 N s/m, each element alone) at most 3 825 steps
@@ -204,13 +204,12 @@ struct Model5Geometry {
   // last three intervals is at most creep_slow_load x (lambda x output_dt)^2
   // times its largest mean so far steps without the creep limit; if it is
   // also at most slow_step_load times that, at slow_step_factor x
-  // max_step_s (within the shear's stability); slow_step_light_factor
-  // times looser where elements 2 and 3 damp their nodes at rates r / m at
-  // most slow_step_light_rate_1_s. 0 (or factor 1): off.
+  // max_step_s (within the shear's stability); where elements 2 and 3 damp
+  // their nodes at rates r / m of at most slow_step_light_rate_1_s, every
+  // interval the face presses takes that step. 0 (or factor 1): off.
   double creep_slow_load = 0.01;
   double slow_step_load = 1e-3;
   double slow_step_factor = 2.0;
-  double slow_step_light_factor = 3.0;
   double slow_step_light_rate_1_s = 3000.0;
   // Slow-load steps (not the creep limit's lifting) only in output
   // intervals starting at or after slow_step_after_s.

@@ -125,6 +125,7 @@ struct Layout {
   double step_slow_s = 0.0;
   int n_sub_slow = 1;
   double slow_after_s = 0.0;  // slow steps only in intervals starting at or after this
+  bool slow_any_load = false;  // layers lightly damped: slow steps whatever the load's curvature
   int n_first = 0;       // steps to reach first_output_s (0 if it is 0)
   double first_step_s = 0.0;
 };
@@ -1084,9 +1085,10 @@ void run(Integrator<T>& it, const Layout& L, const Impact& imp, int n_samples, R
       const int pressed = it.pressed_count();
       const bool steady = !clear && i > 4 && pressed > 0 && pressed == pressed1 && pressed == pressed0;
       const double d2 = mass * std::abs(v3 - 3.0 * v2 + 3.0 * v1 - v0);
-      const bool slow = steady && L.n_sub_slow < L.n_sub_free && t0 >= L.slow_after_s &&
-                        d2 <= L.slow_step_bound * f_max * dt_out &&
-                        (!limited || d2 <= L.slow_load_bound * f_max * dt_out);
+      const bool slow = L.n_sub_slow < L.n_sub_free && t0 >= L.slow_after_s &&
+                        ((L.slow_any_load && pressed > 0) ||
+                         (steady && d2 <= L.slow_step_bound * f_max * dt_out &&
+                          (!limited || d2 <= L.slow_load_bound * f_max * dt_out)));
       const bool unlimited = clear || (steady && limited && d2 <= L.slow_load_bound * f_max * dt_out);
       pressed0 = pressed1, pressed1 = pressed;
       const int n = slow ? L.n_sub_slow : (unlimited ? L.n_sub_free : L.n_sub * refine);

@@ -385,6 +385,7 @@ TEST(Model5, SlowLoadTakesLongerSteps) {
   Model5Geometry off;
   off.creep_slow_load = 0.0;
   off.slow_step_load = 0.0;
+  off.slow_step_factor = 1.0;
   const Model5Geometry on;
   const Model5Result t2_off = simulate_model5_detailed(table2(), off, trial3());
   const Model5Result t2_on = simulate_model5_detailed(table2(), on, trial3());
