@@ -139,11 +139,11 @@
 // decisions use scalar parts (the same steps for a Jet). The first output interval is stepped 8 times finer (the face
 // lands at full speed on light cells). At the paper's parameters: 0.1
 // ms, 3070 steps per 0.3 s (unchanged); over the fitter's bounds (k
-// 2e3..3e7 N/m, r 3..3e4 N s/m, each element alone) at most 3 825 steps
+// 2e3..3e7 N/m, r 3..3e4 N s/m, each element alone) at most 3 592 steps
 // in a scan of 4 764 points (8 102 before the slow-load rules), within 0.5
 // % of the peak and 1 % RMS of a 1 us reference except where the layers
-// are heavily damped (the explicit shear's splitting error at landing, up
-// to 1.4 % of peak; docs/models.md). The cubic term (k1_cubic) is explicit: keep max_step_s small
+// are heavily damped (r >~ 1.2e4 N s/m: the explicit shear's splitting
+// error at landing, up to 1.4 % of peak and 1.3 % RMS; docs/models.md). The cubic term (k1_cubic) is explicit: keep max_step_s small
 // enough for its tangent stiffness. Every element applies equal and
 // opposite forces, so the GRF impulse balances the impactor's and the mat's
 // momentum. Nothing is allocated inside the time loop. The former explicit
