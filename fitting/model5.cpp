@@ -56,6 +56,12 @@ void validate(const MatParams& p, const Model5Geometry& g, const Impact& im) {
           "impactor height and moments of inertia must be finite (height >= 0)");
   require(finite_pos(g.max_step_s), "max_step_s must be > 0");
   require(finite_pos(g.creep_step) && finite_pos(g.creep_fast_1_s), "creep_step and creep_fast_1_s must be > 0");
+  require(std::isfinite(g.creep_slow_load) && g.creep_slow_load >= 0.0, "creep_slow_load must be >= 0");
+  require(std::isfinite(g.slow_step_load) && g.slow_step_load >= 0.0, "slow_step_load must be >= 0");
+  require(std::isfinite(g.slow_step_factor) && g.slow_step_factor >= 1.0, "slow_step_factor must be >= 1");
+  require(std::isfinite(g.slow_step_after_s) && g.slow_step_after_s >= 0.0, "slow_step_after_s must be >= 0");
+  require(std::isfinite(g.slow_step_light_rate_1_s) && g.slow_step_light_rate_1_s >= 0.0,
+          "slow_step_light_rate_1_s must be >= 0");
   require(g.stability_fraction > 0.0 && g.stability_fraction <= 1.0, "stability_fraction must be in (0, 1]");
 }
 
@@ -589,8 +595,13 @@ static void choose_step(const Model5ParamsT<double>& q, const Model5Geometry& ge
   // The shear damping is sub-stepped inside the kicks (Integrator::kick):
   // only the shear stiffness bounds the step, w dt < 2.
   L.shear_gamma = gam;
-  double dt_limit = geo.max_step_s;
-  if (w2 > 0.0) dt_limit = std::min(dt_limit, geo.stability_fraction * 2.0 / std::sqrt(w2));
+  const double dt_shear = w2 > 0.0 ? geo.stability_fraction * 2.0 / std::sqrt(w2) : 1e300;
+  // The longer step keeps a wider margin to the shear's stability (w dt <=
+  // 1, where 1.6 is used otherwise: with stiff shear the splitting went
+  // unstable at w dt = 1.48) and is never shorter than the normal one.
+  const double dt_normal = std::min(geo.max_step_s, dt_shear);
+  const double dt_long = std::max(dt_normal, std::min(geo.slow_step_factor * geo.max_step_s, 0.625 * dt_shear));
+  double dt_limit = dt_normal;
   // While the face is clear of the mat every column is linear with constant
   // coefficients and stepped exactly (Integrator::free_propagator): the
   // creep limit below is for the implicit stages of the pressed columns.
@@ -616,7 +627,10 @@ static void choose_step(const Model5ParamsT<double>& q, const Model5Geometry& ge
     const double mu = m1n * m2n / (m1n + m2n);
     const double lambda = std::max({creep(k1w, r1w, m1n), creep(q.k2_n_m / L.n, q.r2_n_s_m / L.n, mu),
                                     creep(q.k3_n_m / L.n, q.r3_n_s_m / L.n, m2n)});
-    if (lambda > 0.0) dt_limit = std::min(dt_limit, kCreepStep / lambda);
+    if (lambda > 0.0 && kCreepStep / lambda < dt_limit) {
+      dt_limit = kCreepStep / lambda;
+      L.creep_rate_1_s = lambda;
+    }
   }
   const double out_dt = impact.output_dt_s;
   const long n_sub = std::max(1L, static_cast<long>(std::ceil(out_dt / dt_limit - 1e-9)));
@@ -629,6 +643,29 @@ static void choose_step(const Model5ParamsT<double>& q, const Model5Geometry& ge
   L.step_s = out_dt / static_cast<double>(n_sub);
   L.n_sub_free = std::min(L.n_sub, std::max(1, static_cast<int>(std::ceil(out_dt / dt_limit_free - 1e-9))));
   L.step_free_s = out_dt / static_cast<double>(L.n_sub_free);
+  // The creep error follows (curvature of the load) / lambda^2: the bound on
+  // the second difference over an output interval scales with (lambda dt)^2.
+  L.slow_load_bound = geo.creep_slow_load * (L.creep_rate_1_s * out_dt) * (L.creep_rate_1_s * out_dt);
+  // The slow-load step: slow_step_factor x max_step_s within the shear's
+  // stability (see Integration in model5.h).
+  L.n_sub_slow = std::min(L.n_sub_free, std::max(1, static_cast<int>(std::ceil(out_dt / dt_long - 1e-9))));
+  // Only from slow_step_after_s on: a typical impact's stepping (contact
+  // over by then), and so the fitter's objective and derivatives around
+  // it, is left as it was.
+  L.slow_after_s = geo.slow_step_after_s;
+  L.step_slow_s = out_dt / static_cast<double>(L.n_sub_slow);
+  // Where the layers damp lightly (elements 2 and 3 damp their node motion
+  // at rates r / m of at most slow_step_light_rate_1_s), the longer step holds after
+  // slow_step_after_s whatever the load's curvature and the creep (the
+  // errors it moves are the heavily damped layers' splitting at landing
+  // and the hard impacts' creep, both over by then): every pressed interval
+  // from then on takes it.
+  {
+    const double mu = m1n * m2n / (m1n + m2n);
+    const double rate = std::max(q.r2_n_s_m / L.n / mu, q.r3_n_s_m / L.n / m2n);
+    L.slow_any_load = rate <= geo.slow_step_light_rate_1_s;
+    L.slow_step_bound = geo.slow_step_load;
+  }
   if (impact.first_output_s > 0.0) {
     L.n_first = std::max(1, static_cast<int>(std::ceil(impact.first_output_s / dt_limit - 1e-9)));
     L.first_step_s = impact.first_output_s / L.n_first;

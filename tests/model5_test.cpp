@@ -285,11 +285,16 @@ struct Case {
   double k, r;  // all three elements; k = 0: Table 2; k < 0: see case_params
   double rms_limit;
   double peak_limit = 0.005;
+  // Each element on its own (k1, k2, k3, r1, r2, r3) when k1 > 0; k and r ignored.
+  double each[6] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
 };
 
 MatParams case_params(const Case& c) {
   MatParams p = table2();
-  if (c.k < 0.0) {  // element 1 at its stiff, damped corner, the others Table 2's
+  if (c.each[0] > 0.0) {
+    p.k1_n_m = c.each[0], p.k2_n_m = c.each[1], p.k3_n_m = c.each[2];
+    p.r1_n_s_m = c.each[3], p.r2_n_s_m = c.each[4], p.r3_n_s_m = c.each[5];
+  } else if (c.k < 0.0) {  // element 1 at its stiff, damped corner, the others Table 2's
     p.k1_n_m = 3e7;
     p.r1_n_s_m = 3e4;
   } else if (c.k > 0.0) {
@@ -338,7 +343,16 @@ INSTANTIATE_TEST_SUITE_P(TypicalAndBounds, Model5Accuracy,
                                            // peaks (measured 1.43 % of peak, 0.66 % RMS; second
                                            // order in the step: docs/models.md).
                                            Case{"near_critical", 3e7, 6000.0, 0.01},
-                                           Case{"damped_interior", 1e6, 3e4, 0.01, 0.015}),
+                                           Case{"damped_interior", 1e6, 3e4, 0.01, 0.015},
+                                           // Long contacts whose creep limited the step while
+                                           // the face pressed (4 960, 8 102, 7 310 steps), now
+                                           // on the slow-load steps (docs/models.md, Step).
+                                           Case{"creep_long_contact", 0.0, 0.0, 0.01, 0.005,
+                                                {2.8e7, 8.9e4, 3.8e4, 1.5e4, 280.0, 850.0}},
+                                           Case{"creep_element2_soft_top", 0.0, 0.0, 0.01, 0.005,
+                                                {3.47e3, 2.89e7, 4.88e5, 4.15, 1.84e4, 162.0}},
+                                           Case{"creep_stiff_top_soft_base", 0.0, 0.0, 0.01, 0.005,
+                                                {2.43e7, 2.79e7, 2.58e3, 1.42e4, 283.0, 94.2}}),
                          [](const auto& info) { return std::string(info.param.name); });
 
 TEST(Model5, StepIsSetByAccuracyNotStability) {
@@ -361,6 +375,40 @@ TEST(Model5, StepIsSetByAccuracyNotStability) {
   EXPECT_NEAR(critical.step_s, 1e-4, 1e-12);
   const Model5Result old = simulate_model5_leapfrog(case_params({"", 3e7, 3e4, 0.0}), Model5Geometry{}, trial3());
   EXPECT_LT(old.step_s, 1e-5);
+}
+
+// The slow-load rules (model5.h, Integration): a long contact whose load
+// changes slowly steps without the creep limit and, after 0.1 s, at twice
+// max_step_s; counted in steps (not timed). Table 2 (contact over by 0.1 s,
+// not creep-limited) is stepped exactly as before.
+TEST(Model5, SlowLoadTakesLongerSteps) {
+  Model5Geometry off;
+  off.creep_slow_load = 0.0;
+  off.slow_step_load = 0.0;
+  off.slow_step_factor = 1.0;
+  const Model5Geometry on;
+  const Model5Result t2_off = simulate_model5_detailed(table2(), off, trial3());
+  const Model5Result t2_on = simulate_model5_detailed(table2(), on, trial3());
+  EXPECT_EQ(t2_off.steps, 3070);
+  EXPECT_LE(t2_on.steps, t2_off.steps);
+  EXPECT_LT(max_abs_diff(t2_on.sim.grf_n, t2_off.sim.grf_n), 1e-4 * t2_off.peak_grf_n);
+  struct Long {
+    MatParams p;
+    long steps_off, steps_max;
+  };
+  MatParams soft = table2();
+  soft.k1_n_m = soft.k2_n_m = soft.k3_n_m = 2e3;
+  soft.r1_n_s_m = soft.r2_n_s_m = soft.r3_n_s_m = 3.0;
+  const Long cases[] = {
+      {soft, 3070, 2100},  // measured 2 070
+      {case_params(Case{"", 0.0, 0.0, 0.0, 0.0, {2.8e7, 8.9e4, 3.8e4, 1.5e4, 280.0, 850.0}}), 4960, 3500},  // 3 448
+      {case_params(Case{"", 0.0, 0.0, 0.0, 0.0, {3.47e3, 2.89e7, 4.88e5, 4.15, 1.84e4, 162.0}}), 8102, 2400},  // 2 334
+      {case_params(Case{"", 0.0, 0.0, 0.0, 0.0, {2.43e7, 2.79e7, 2.58e3, 1.42e4, 283.0, 94.2}}), 7310, 2800},  // 2 720
+  };
+  for (const Long& c : cases) {
+    EXPECT_EQ(simulate_model5_detailed(c.p, off, trial3()).steps, c.steps_off);
+    EXPECT_LE(simulate_model5_detailed(c.p, on, trial3()).steps, c.steps_max);
+  }
 }
 
 TEST(Model5, FirstOutputOffsetSamplesBetweenTheSteps) {
