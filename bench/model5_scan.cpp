@@ -55,6 +55,43 @@ struct Point {
   double ms = 0.0;
 };
 
+// The scan's points: a grid x grid log-spaced grid over k 2e3..3e7 N/m and
+// r 3..3e4 N s/m for all three elements alike and for each alone (the
+// others at Table 2), then n_random points with every k and r drawn
+// log-uniformly (seeded; the grid draws nothing, so the random points are
+// the same whatever the grid).
+std::vector<Point> scan_points(int n_random, unsigned seed, int grid) {
+  const MatParams t2 = paper_table2(ModelKind::Model5);
+  std::vector<Point> pts;
+  auto logspace = [grid](double a, double b, int i) {
+    return std::exp(std::log(a) + (std::log(b) - std::log(a)) * i / (grid - 1));
+  };
+  for (int mode = 0; mode < 4; ++mode)  // 0: all alike; 1..3: element mode alone
+    for (int i = 0; i < grid; ++i)
+      for (int j = 0; j < grid; ++j) {
+        const double k = logspace(2e3, 3e7, i), r = logspace(3.0, 3e4, j);
+        MatParams p = t2;
+        if (mode == 0 || mode == 1) p.k1_n_m = k, p.r1_n_s_m = r;
+        if (mode == 0 || mode == 2) p.k2_n_m = k, p.r2_n_s_m = r;
+        if (mode == 0 || mode == 3) p.k3_n_m = k, p.r3_n_s_m = r;
+        pts.push_back({p, mode == 0 ? "grid-all" : "grid-e" + std::to_string(mode)});
+      }
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  auto draw = [&](double a, double b) { return std::exp(std::log(a) + (std::log(b) - std::log(a)) * u(rng)); };
+  for (int i = 0; i < n_random; ++i) {
+    MatParams p = t2;
+    p.k1_n_m = draw(2e3, 3e7);
+    p.k2_n_m = draw(2e3, 3e7);
+    p.k3_n_m = draw(2e3, 3e7);
+    p.r1_n_s_m = draw(3.0, 3e4);
+    p.r2_n_s_m = draw(3.0, 3e4);
+    p.r3_n_s_m = draw(3.0, 3e4);
+    pts.push_back({p, "random"});
+  }
+  return pts;
+}
+
 double time_ms(const MatParams& p, const Model5Geometry& g, int reps, long* steps) {
   double best = 1e300;
   for (int i = 0; i < reps; ++i) {
@@ -103,36 +140,9 @@ void print_err(const char* what, const MatParams& p, const Model5Geometry& g) {
 }
 
 int scan(int n_random, unsigned seed, int n_err, int grid) {
-  const MatParams t2 = paper_table2(ModelKind::Model5);
   const Model5Geometry geo;
-  std::vector<Point> pts;
-  auto logspace = [grid](double a, double b, int i) {
-    return std::exp(std::log(a) + (std::log(b) - std::log(a)) * i / (grid - 1));
-  };
-  for (int mode = 0; mode < 4; ++mode)  // 0: all alike; 1..3: element mode alone
-    for (int i = 0; i < grid; ++i)
-      for (int j = 0; j < grid; ++j) {
-        const double k = logspace(2e3, 3e7, i), r = logspace(3.0, 3e4, j);
-        MatParams p = t2;
-        if (mode == 0 || mode == 1) p.k1_n_m = k, p.r1_n_s_m = r;
-        if (mode == 0 || mode == 2) p.k2_n_m = k, p.r2_n_s_m = r;
-        if (mode == 0 || mode == 3) p.k3_n_m = k, p.r3_n_s_m = r;
-        pts.push_back({p, mode == 0 ? "grid-all" : "grid-e" + std::to_string(mode)});
-      }
-  const std::size_t n_grid = pts.size();
-  std::mt19937_64 rng(seed);
-  std::uniform_real_distribution<double> u(0.0, 1.0);
-  auto draw = [&](double a, double b) { return std::exp(std::log(a) + (std::log(b) - std::log(a)) * u(rng)); };
-  for (int i = 0; i < n_random; ++i) {
-    MatParams p = t2;
-    p.k1_n_m = draw(2e3, 3e7);
-    p.k2_n_m = draw(2e3, 3e7);
-    p.k3_n_m = draw(2e3, 3e7);
-    p.r1_n_s_m = draw(3.0, 3e4);
-    p.r2_n_s_m = draw(3.0, 3e4);
-    p.r3_n_s_m = draw(3.0, 3e4);
-    pts.push_back({p, "random"});
-  }
+  std::vector<Point> pts = scan_points(n_random, seed, grid);
+  const std::size_t n_grid = pts.size() - static_cast<std::size_t>(n_random);
   double total = 0.0;
   for (Point& q : pts) {
     q.ms = time_ms(q.p, geo, 1, &q.steps);
@@ -182,22 +192,13 @@ int scan(int n_random, unsigned seed, int n_err, int grid) {
 
 // Errors at a sample of random points (every `every`-th, from the same draw).
 int accuracy(int n_random, unsigned seed, int every) {
-  const MatParams t2 = paper_table2(ModelKind::Model5);
   const Model5Geometry geo;
-  std::mt19937_64 rng(seed);
-  std::uniform_real_distribution<double> u(0.0, 1.0);
-  auto draw = [&](double a, double b) { return std::exp(std::log(a) + (std::log(b) - std::log(a)) * u(rng)); };
+  const std::vector<Point> pts = scan_points(n_random, seed, 0);
   Err worst_peak, worst_rms;
   std::string wp, wr;
   int n = 0;
   for (int i = 0; i < n_random; ++i) {
-    MatParams p = t2;
-    p.k1_n_m = draw(2e3, 3e7);
-    p.k2_n_m = draw(2e3, 3e7);
-    p.k3_n_m = draw(2e3, 3e7);
-    p.r1_n_s_m = draw(3.0, 3e4);
-    p.r2_n_s_m = draw(3.0, 3e4);
-    p.r3_n_s_m = draw(3.0, 3e4);
+    const MatParams& p = pts[static_cast<std::size_t>(i)].p;
     if (i % every) continue;
     const Err e = error(p, geo);
     ++n;
@@ -216,34 +217,8 @@ int accuracy(int n_random, unsigned seed, int every) {
 // Every creep-limited point of the scan (more steps than with the creep
 // limit off): its error with the given creep_step (1e9: off), one line each.
 int creep(int n_random, unsigned seed, int grid, double creep_step, double slow_load) {
-  const MatParams t2 = paper_table2(ModelKind::Model5);
   std::vector<MatParams> pts;
-  auto logspace = [grid](double a, double b, int i) {
-    return std::exp(std::log(a) + (std::log(b) - std::log(a)) * i / (grid - 1));
-  };
-  for (int mode = 0; mode < 4; ++mode)
-    for (int i = 0; i < grid; ++i)
-      for (int j = 0; j < grid; ++j) {
-        const double k = logspace(2e3, 3e7, i), r = logspace(3.0, 3e4, j);
-        MatParams p = t2;
-        if (mode == 0 || mode == 1) p.k1_n_m = k, p.r1_n_s_m = r;
-        if (mode == 0 || mode == 2) p.k2_n_m = k, p.r2_n_s_m = r;
-        if (mode == 0 || mode == 3) p.k3_n_m = k, p.r3_n_s_m = r;
-        pts.push_back(p);
-      }
-  std::mt19937_64 rng(seed);
-  std::uniform_real_distribution<double> u(0.0, 1.0);
-  auto draw = [&](double a, double b) { return std::exp(std::log(a) + (std::log(b) - std::log(a)) * u(rng)); };
-  for (int i = 0; i < n_random; ++i) {
-    MatParams p = t2;
-    p.k1_n_m = draw(2e3, 3e7);
-    p.k2_n_m = draw(2e3, 3e7);
-    p.k3_n_m = draw(2e3, 3e7);
-    p.r1_n_s_m = draw(3.0, 3e4);
-    p.r2_n_s_m = draw(3.0, 3e4);
-    p.r3_n_s_m = draw(3.0, 3e4);
-    pts.push_back(p);
-  }
+  for (const Point& q : scan_points(n_random, seed, grid)) pts.push_back(q.p);
   Model5Geometry off;
   off.creep_step = 1e9;
   Model5Geometry g;
@@ -268,34 +243,8 @@ int creep(int n_random, unsigned seed, int grid, double creep_step, double slow_
 // n_random random points, one line each, with max_step_s and
 // creep_slow_load given.
 int errors(int n_random, unsigned seed, int grid, double max_step, double slow_load, double step_load) {
-  const MatParams t2 = paper_table2(ModelKind::Model5);
   std::vector<MatParams> pts;
-  auto logspace = [grid](double a, double b, int i) {
-    return std::exp(std::log(a) + (std::log(b) - std::log(a)) * i / (grid - 1));
-  };
-  for (int mode = 0; mode < 4; ++mode)
-    for (int i = 0; i < grid; ++i)
-      for (int j = 0; j < grid; ++j) {
-        const double k = logspace(2e3, 3e7, i), r = logspace(3.0, 3e4, j);
-        MatParams p = t2;
-        if (mode == 0 || mode == 1) p.k1_n_m = k, p.r1_n_s_m = r;
-        if (mode == 0 || mode == 2) p.k2_n_m = k, p.r2_n_s_m = r;
-        if (mode == 0 || mode == 3) p.k3_n_m = k, p.r3_n_s_m = r;
-        pts.push_back(p);
-      }
-  std::mt19937_64 rng(seed);
-  std::uniform_real_distribution<double> u(0.0, 1.0);
-  auto draw = [&](double a, double b) { return std::exp(std::log(a) + (std::log(b) - std::log(a)) * u(rng)); };
-  for (int i = 0; i < n_random; ++i) {
-    MatParams p = t2;
-    p.k1_n_m = draw(2e3, 3e7);
-    p.k2_n_m = draw(2e3, 3e7);
-    p.k3_n_m = draw(2e3, 3e7);
-    p.r1_n_s_m = draw(3.0, 3e4);
-    p.r2_n_s_m = draw(3.0, 3e4);
-    p.r3_n_s_m = draw(3.0, 3e4);
-    pts.push_back(p);
-  }
+  for (const Point& q : scan_points(n_random, seed, grid)) pts.push_back(q.p);
   Model5Geometry g;
   g.max_step_s = max_step;
   g.creep_slow_load = slow_load;
