@@ -29,7 +29,8 @@ namespace dropfit::fitting {
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-constexpr double kRk4Step = 2.5e-4;  // RK4 (effects on): at most this, and 0.5 / the fastest rate
+// RK4 (effects on): the same step as simulate() takes (fitting/models.h).
+const double kRk4Step = SimulateOptions{}.rk4_max_step_s;
 
 inline bool finite_all(double x) { return std::isfinite(x); }
 template <typename J>
