@@ -73,6 +73,12 @@ TEST(OptionsValidate, TrialOptions) {
   bad = o;
   bad.min_marker_coverage = 1.5;
   expect_error_naming([&] { bad.validate(); }, {"min_marker_coverage", "1.5"});
+  bad = o;
+  bad.max_surface_reference_m = -0.001;
+  expect_error_naming([&] { bad.validate(); }, {"max_surface_reference_m", "-0.001"});
+  bad = o;
+  bad.min_rest_frames = 0;
+  expect_error_naming([&] { bad.validate(); }, {"min_rest_frames", "0"});
   // At the stage entry: an error, not a rejected trial.
   bad = o;
   bad.impulse_tolerance = 0.0;
