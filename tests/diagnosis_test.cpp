@@ -369,22 +369,26 @@ std::vector<std::string> sorted_names(const std::vector<E>& effects) {
   return names;
 }
 
+// The loop on an independent session: exactly the injected effects named,
+// and nothing left unexplained.
+DiagnosisResult diagnose_expecting_truth(const synth::SyntheticSession& s) {
+  DiagnosisResult r = diagnose(s.session);
+  EXPECT_EQ(sorted_names(r.effects), sorted_names(s.truth.effects)) << r.report();
+  EXPECT_FALSE(r.unexplained) << r.report();
+  return r;
+}
+
 TEST(Diagnosis, CleanMatWithEqualLowerLayersIsFittedToTheNoise) {
   const auto s = independent_session(701);
   ASSERT_TRUE(s.truth.effects.empty());
-  const DiagnosisResult r = diagnose(s.session);
-  EXPECT_TRUE(r.effects.empty()) << r.report();
-  EXPECT_FALSE(r.unexplained) << r.report();
+  diagnose_expecting_truth(s);
 }
 
 TEST(Diagnosis, AStuckBaselineIsNotCreditedToAnEffect) {
   const auto s = independent_session(702);
   const std::vector<std::string> truth = sorted_names(s.truth.effects);
   ASSERT_EQ(truth, (std::vector<std::string>{"baseline_drift", "force_scale"}));
-  const DiagnosisResult r = diagnose(s.session);
-  const std::vector<std::string> named = sorted_names(r.effects);
-  EXPECT_EQ(named, truth) << r.report();
-  EXPECT_FALSE(r.unexplained) << r.report();
+  diagnose_expecting_truth(s);
 }
 
 // Session s012 of the same archive (seed 711): a clean mat, and lens
@@ -399,9 +403,7 @@ TEST(Diagnosis, LensDistortionLeavesNoTravelResidualForTheMat) {
   const auto s = independent_session(711);
   const std::vector<std::string> truth = sorted_names(s.truth.effects);
   ASSERT_EQ(truth, (std::vector<std::string>{"lens_distortion"}));
-  const DiagnosisResult r = diagnose(s.session);
-  EXPECT_EQ(sorted_names(r.effects), truth) << r.report();
-  EXPECT_FALSE(r.unexplained) << r.report();
+  diagnose_expecting_truth(s);
 }
 
 // Session s016 of the same archive (seed 715): stiffening and a weak
@@ -412,10 +414,7 @@ TEST(Diagnosis, AWeakMaxwellArmBesideStiffeningIsNamed) {
   const auto s = independent_session(715);
   const std::vector<std::string> truth = sorted_names(s.truth.effects);
   ASSERT_EQ(truth, (std::vector<std::string>{"rate_dependence", "stiffness_nonlinearity"}));
-  const DiagnosisResult r = diagnose(s.session);
-  const std::vector<std::string> named = sorted_names(r.effects);
-  EXPECT_EQ(named, truth) << r.report();
-  EXPECT_FALSE(r.unexplained) << r.report();
+  const DiagnosisResult r = diagnose_expecting_truth(s);
   const Effect* arm = r.find("rate_dependence");
   ASSERT_NE(arm, nullptr);
   // Within 15 % of the true arm (27 097 N/m, 28.4 ms).
@@ -431,12 +430,8 @@ TEST(Diagnosis, AWeakMaxwellArmBesideStiffeningIsNamed) {
 // the damping stayed named until the selection got its backward step.
 TEST(Diagnosis, AnEffectMadeRedundantByLaterOnesIsTakenOut) {
   const auto s = independent_session(807);
-  const std::vector<std::string> truth = sorted_names(s.truth.effects);
-  const DiagnosisResult r = diagnose(s.session);
-  const std::vector<std::string> named = sorted_names(r.effects);
-  EXPECT_EQ(named, truth) << r.report();
+  const DiagnosisResult r = diagnose_expecting_truth(s);
   EXPECT_EQ(r.find("hysteresis"), nullptr) << r.report();
-  EXPECT_FALSE(r.unexplained) << r.report();
 }
 
 TEST(DiagnosisJson, MapsOntoTheSpec) {
