@@ -15,6 +15,7 @@
 #include <algorithm>
 #include <vector>
 
+#include "bench/model5_impact.h"
 #include "fitting/model5.h"
 #include "fitting/model5_impl.h"
 #include "fitting/models.h"
@@ -23,14 +24,7 @@ namespace {
 
 using namespace dropfit::fitting;
 
-Impact trial3() {
-  Impact im;
-  im.mass_kg = 24.0;
-  im.velocity_m_s = 5.25;
-  im.duration_s = 0.3;
-  im.output_dt_s = 1e-3;
-  return im;
-}
+using dropfit::bench::model5_trial3;
 
 // 0 typical (Table 2), 1 k min r min, 2 k min r max, 3 k max r min, 4 k max r max
 // (every element); inside the bounds, where the step is set by an
@@ -83,7 +77,7 @@ MatParams corner(int which) {
 void BM_Model5(benchmark::State& state) {
   const MatParams p = corner(static_cast<int>(state.range(0)));
   const Model5Geometry geo;
-  const Impact im = trial3();
+  const Impact im = model5_trial3();
   long steps = 0;
   for (auto _ : state) {
     const Model5Result r = simulate_model5_detailed(p, geo, im);
@@ -97,7 +91,7 @@ BENCHMARK(BM_Model5)->DenseRange(0, 10)->Unit(benchmark::kMillisecond)->MeasureP
 void BM_Model5Leapfrog(benchmark::State& state) {
   const MatParams p = corner(static_cast<int>(state.range(0)));
   const Model5Geometry geo;
-  const Impact im = trial3();
+  const Impact im = model5_trial3();
   long steps = 0;
   for (auto _ : state) {
     const Model5Result r = simulate_model5_leapfrog(p, geo, im);
@@ -113,7 +107,7 @@ BENCHMARK(BM_Model5Leapfrog)->DenseRange(0, 10)->Unit(benchmark::kMillisecond);
 void BM_Model5Series(benchmark::State& state) {
   const Model5ParamsT<double> p = model5_params(corner(static_cast<int>(state.range(0))));
   const Model5Geometry geo;
-  const Impact im = trial3();
+  const Impact im = model5_trial3();
   std::vector<double> grf, imp, surf;
   for (auto _ : state) {
     simulate_model5_t<double>(p, geo, im, 301, &grf, &imp, &surf);
@@ -136,7 +130,7 @@ void BM_Model5Jet8(benchmark::State& state) {
   p.m2_kg = J(d.m2_kg, 7);
   p.r1_unload_n_s_m = J(d.r1_unload_n_s_m);
   const Model5Geometry geo;
-  const Impact im = trial3();
+  const Impact im = model5_trial3();
   std::vector<J> grf, imp, surf;
   for (auto _ : state) {
     simulate_model5_t<J>(p, geo, im, 301, &grf, &imp, &surf);
@@ -153,7 +147,7 @@ void BM_Model5_Grid(benchmark::State& state) {
   Model5Geometry geo;
   geo.nodes_x = static_cast<int>(state.range(0));
   geo.nodes_y = std::max(1, static_cast<int>(2 * state.range(0) / 3));
-  const Impact im = trial3();
+  const Impact im = model5_trial3();
   long steps = 0;
   double dt = 0.0;
   for (auto _ : state) {
@@ -170,7 +164,7 @@ BENCHMARK(BM_Model5_Grid)->Arg(1)->Arg(3)->Arg(6)->Arg(9)->Arg(12)->Arg(18)->Uni
 
 void BM_Model4_ForScale(benchmark::State& state) {
   const MatParams p = paper_table2(ModelKind::Model5);
-  const Impact im = trial3();
+  const Impact im = model5_trial3();
   for (auto _ : state) {
     const Simulation s = simulate(ModelKind::Model4, p, im);
     benchmark::DoNotOptimize(s.grf_n.data());

@@ -26,6 +26,7 @@
 #include <string>
 #include <vector>
 
+#include "bench/model5_impact.h"
 #include "fitting/model5.h"
 #include "fitting/models.h"
 
@@ -33,14 +34,7 @@ namespace {
 
 using namespace dropfit::fitting;
 
-Impact trial3() {
-  Impact im;
-  im.mass_kg = 24.0;
-  im.velocity_m_s = 5.25;
-  im.duration_s = 0.3;
-  im.output_dt_s = 1e-3;
-  return im;
-}
+using dropfit::bench::model5_trial3;
 
 double cpu_now() {
   timespec ts;
@@ -96,7 +90,7 @@ double time_ms(const MatParams& p, const Model5Geometry& g, int reps, long* step
   double best = 1e300;
   for (int i = 0; i < reps; ++i) {
     const double t0 = cpu_now();
-    const Model5Result r = simulate_model5_detailed(p, g, trial3());
+    const Model5Result r = simulate_model5_detailed(p, g, model5_trial3());
     best = std::min(best, cpu_now() - t0);
     *steps = r.steps;
   }
@@ -110,8 +104,8 @@ struct Err {
 Err error(const MatParams& p, const Model5Geometry& g) {
   Model5Geometry fine;
   fine.max_step_s = 1e-6;
-  const Model5Result ref = simulate_model5_leapfrog(p, fine, trial3());
-  const Model5Result r = simulate_model5_detailed(p, g, trial3());
+  const Model5Result ref = simulate_model5_leapfrog(p, fine, model5_trial3());
+  const Model5Result r = simulate_model5_detailed(p, g, model5_trial3());
   Err e;
   const double peak = ref.sim.grf_n.maxCoeff();
   const double n = static_cast<double>(ref.sim.grf_n.size());
@@ -227,11 +221,11 @@ int creep(int n_random, unsigned seed, int grid, double creep_step, double slow_
   Model5Geometry limit;
   limit.creep_slow_load = 0.0;
   for (const MatParams& p : pts) {
-    const long base = simulate_model5_detailed(p, limit, trial3()).steps;
-    const long free = simulate_model5_detailed(p, off, trial3()).steps;
+    const long base = simulate_model5_detailed(p, limit, model5_trial3()).steps;
+    const long free = simulate_model5_detailed(p, off, model5_trial3()).steps;
     if (base <= free) continue;
     const Err e = error(p, g);
-    const long now = simulate_model5_detailed(p, g, trial3()).steps;
+    const long now = simulate_model5_detailed(p, g, model5_trial3()).steps;
     std::printf("%g %g %g %g %g %g steps %ld %ld %ld peak %+.4f rms %.4f max %.4f\n", p.k1_n_m, p.k2_n_m, p.k3_n_m,
                 p.r1_n_s_m, p.r2_n_s_m, p.r3_n_s_m, base, free, now, e.peak, e.rms, e.max);
     std::fflush(stdout);
@@ -251,7 +245,7 @@ int errors(int n_random, unsigned seed, int grid, double max_step, double slow_l
   g.slow_step_load = step_load;
   for (const MatParams& p : pts) {
     const Err e = error(p, g);
-    const long steps = simulate_model5_detailed(p, g, trial3()).steps;
+    const long steps = simulate_model5_detailed(p, g, model5_trial3()).steps;
     std::printf("%g %g %g %g %g %g steps %ld peak %+.4f rms %.4f max %.4f\n", p.k1_n_m, p.k2_n_m, p.k3_n_m,
                 p.r1_n_s_m, p.r2_n_s_m, p.r3_n_s_m, steps, e.peak, e.rms, e.max);
     std::fflush(stdout);
@@ -291,8 +285,8 @@ int main(int argc, char** argv) {
     old.creep_slow_load = 0.0;
     old.slow_step_load = 0.0;
     old.slow_step_factor = 1.0;
-    const Model5Result a = simulate_model5_detailed(p, old, trial3());
-    const Model5Result b = simulate_model5_detailed(p, g, trial3());
+    const Model5Result a = simulate_model5_detailed(p, old, model5_trial3());
+    const Model5Result b = simulate_model5_detailed(p, g, model5_trial3());
     std::printf("vs slow-load rules off: %ld -> %ld steps, max |GRF diff| %.4f %% of peak\n", a.steps, b.steps,
                 100.0 * (a.sim.grf_n - b.sim.grf_n).cwiseAbs().maxCoeff() / a.sim.grf_n.maxCoeff());
     return 0;
