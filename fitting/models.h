@@ -116,11 +116,12 @@ struct SimulateOptions {
     RK4,    // fixed-step RK4 (the fine-step reference too)
   };
   Method method = Method::Auto;
-  // RK4 step: the output step divided evenly, at most this and at most
-  // 0.5 / (a bound on the fastest rate of the model). 0.25 ms: against a
-  // 1 us reference the force stays within 0.002 % of its peak (0.15 N, a
-  // tenth of a plate's noise) on fitted mats with every effect; the rate
-  // bound sets the step on stiff mats (docs/models.md).
+  // RK4 step: the output step divided evenly, at most this, at most 0.5 / w
+  // for the fastest oscillation and 1 / d for the fastest decay (bounds from
+  // the stiffnesses, dampings and masses; fitting/models_impl.h). 0.25 ms:
+  // against a 1 us reference the force stays within 0.002 % of its peak
+  // (0.15 N, a tenth of a plate's noise) on fitted mats with every effect;
+  // the w and d bounds set the step on stiff or damped mats (docs/models.md).
   double rk4_max_step_s = 2.5e-4;
 };
 
