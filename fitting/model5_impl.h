@@ -1085,11 +1085,11 @@ void run(Integrator<T>& it, const Layout& L, const Impact& imp, int n_samples, R
       const int pressed = it.pressed_count();
       const bool steady = !clear && i > 4 && pressed > 0 && pressed == pressed1 && pressed == pressed0;
       const double d2 = mass * std::abs(v3 - 3.0 * v2 + 3.0 * v1 - v0);
+      const bool slow_load = steady && d2 <= L.slow_load_bound * f_max * dt_out;
       const bool slow = L.n_sub_slow < L.n_sub_free && t0 >= L.slow_after_s &&
                         ((L.slow_any_load && pressed > 0) ||
-                         (steady && d2 <= L.slow_step_bound * f_max * dt_out &&
-                          (!limited || d2 <= L.slow_load_bound * f_max * dt_out)));
-      const bool unlimited = clear || (steady && limited && d2 <= L.slow_load_bound * f_max * dt_out);
+                         (steady && d2 <= L.slow_step_bound * f_max * dt_out && (!limited || slow_load)));
+      const bool unlimited = clear || (limited && slow_load);
       pressed0 = pressed1, pressed1 = pressed;
       const int n = slow ? L.n_sub_slow : (unlimited ? L.n_sub_free : L.n_sub * refine);
       const double h = slow ? L.step_slow_s : (unlimited ? L.step_free_s : L.step_s / refine);
