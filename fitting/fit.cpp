@@ -20,6 +20,7 @@
 #include <atomic>
 #include <utility>
 
+#include "core/cpu_dispatch.h"
 #include "core/error.h"
 #include "fitting/model5_impl.h"
 #include "fitting/models_impl.h"
@@ -549,7 +550,7 @@ void shift_jacobian(const Prepared& p, const std::vector<double>& grf, double sh
 struct Model5Sim {
   static constexpr bool kModel5 = true;
   template <typename T>
-  static void run(const Prepared& p, const ParamSpace& space, const FitOptions& o, const T* u, std::vector<T>* grf,
+  DROPFIT_CPU_CLONES static void run(const Prepared& p, const ParamSpace& space, const FitOptions& o, const T* u, std::vector<T>* grf,
                   std::vector<T>* imp) {
     simulate_model5_t<T>(model5_params_t(space.to_params<T>(u)), o.model5_geometry, p.impact, p.n_grid, grf,
                          p.k_idx.empty() ? nullptr : imp, nullptr);
@@ -559,7 +560,7 @@ struct Model5Sim {
 struct ChainSim {
   static constexpr bool kModel5 = false;
   template <typename T>
-  static void run(const Prepared& p, const ParamSpace& space, const FitOptions& o, const T* u, std::vector<T>* grf,
+  DROPFIT_CPU_CLONES static void run(const Prepared& p, const ParamSpace& space, const FitOptions& o, const T* u, std::vector<T>* grf,
                   std::vector<T>* imp) {
     const ModelKind shape = space.model;
     const detail::Layout layout = detail::layout_for(shape, shape == ModelKind::Model2 && o.m_eff_kg == 0.0);

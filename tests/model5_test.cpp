@@ -452,9 +452,14 @@ TEST(Model5, FitterParameterBlockMapsOntoModel5) {
   simulate_model5_t<double>(a, Model5Geometry{}, trial3(), 301, &ga, nullptr, nullptr);
   simulate_model5_t<double>(b, Model5Geometry{}, trial3(), 301, &gb, nullptr, nullptr);
   EXPECT_EQ(ga, gb);
-  // And simulate_model5 (the Simulation path) gives the same force.
+  // And simulate_model5 (the Simulation path) gives the same force: to
+  // rounding, since it may run the AVX2/FMA copy (core/cpu_dispatch.h)
+  // where this test's own instantiation runs the baseline one.
   const Simulation s = simulate_model5(p, Model5Geometry{}, trial3());
-  for (int k = 0; k < 301; ++k) ASSERT_EQ(s.grf_n(k), ga[k]);
+  const double peak_n = s.grf_n.maxCoeff();
+  double worst_n = 0.0;
+  for (int k = 0; k < 301; ++k) worst_n = std::max(worst_n, std::abs(s.grf_n(k) - ga[k]));
+  EXPECT_LE(worst_n, 1e-12 * peak_n);  // measured 1.5e-14 of the peak
   p.maxwell_k_n_m = 1000.0;
   p.maxwell_tau_s = 0.01;
   EXPECT_THROW(model5_params_t(detail::to_params_t<double>(ModelKind::Model4, p)), Error);

@@ -1,0 +1,17 @@
+// DROPFIT_CPU_CLONES: a hot numeric function compiled twice, for x86-64-v3
+// (AVX2, FMA) and for the baseline x86-64, with the copy chosen when the
+// program loads by what the CPU runs (GCC's target_clones, an ifunc); one
+// binary, no -march at build time, the same on every Debian 12 machine.
+// `flatten` inlines everything the function calls into each copy, so the
+// integrator's steps themselves take the wider instructions.
+//
+// The copies differ in rounding only (FMA contracts a*b+c): results agree
+// to the last few bits, not bit for bit, across CPUs. Elsewhere (clang,
+// other architectures) it expands to nothing.
+#pragma once
+
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define DROPFIT_CPU_CLONES __attribute__((target_clones("arch=x86-64-v3", "default"), flatten))
+#else
+#define DROPFIT_CPU_CLONES
+#endif
