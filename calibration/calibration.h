@@ -14,18 +14,24 @@
 //
 // Optional lens distortion (the "dlt16" model): Bouguet's k1, k2, p1, p2, k3
 // (Bouguet's Camera Calibration Toolbox; OpenCV's order and signs) applied to
-// the DLT-projected point (u, v), about a fixed centre c = principal_point_px
-// and with the radius normalised by a fixed focal_px:
+// the DLT-projected point (u, v), about the centre c = principal_point_px
+// and with the radius normalised by focal_px:
 //
 //   x = (u - cu) / f,  y = (v - cv) / f,  r2 = x^2 + y^2
 //   xd = x (1 + k1 r2 + k2 r2^2 + k3 r2^3) + 2 p1 x y + p2 (r2 + 2 x^2)
 //   yd = y (1 + k1 r2 + k2 r2^2 + k3 r2^3) + p1 (r2 + 2 y^2) + 2 p2 x y
 //   measured pixel = c + f (xd, yd)
 //
-// c and f come from decomposing the linear DLT (u0 = (L1 L9 + L2 L10 +
-// L3 L11) / (L9^2 + L10^2 + L11^2), likewise v0; f the mean of the two
-// focal lengths); they are constants of the model, not re-estimated, and a
-// single f ignores the small aspect ratio and skew a DLT may carry.
+// c and f are the DLT's own principal point and mean focal length (u0 =
+// (L1 L9 + L2 L10 + L3 L11) / (L9^2 + L10^2 + L11^2), likewise v0; f the mean
+// of the two focal lengths), moving with the DLT while it is fitted: the
+// lens distorts about its optical axis. They are not extra parameters, and
+// a single f ignores the small aspect ratio and skew a DLT may carry. The
+// fit starts from the distortion about the linear DLT's principal point
+// held fixed and from several k1 (the linear DLT's centre, bent by a
+// strong lens, can lie 150 px from the axis; from there alone the fit
+// stayed in a poor optimum). Stored with the camera, c and f are constants
+// for projecting and undistorting; a camera read from a file keeps its own.
 //
 // With the usual 10 fit markers the full 16-parameter fit has only 20
 // equations for 16 unknowns, and k2 and k3 do not identify: on the test

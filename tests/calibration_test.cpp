@@ -249,12 +249,42 @@ TEST(FitDlt, DistortionFitRecoversTheLensNoiseFree) {
     ASSERT_EQ(dlt16.camera.distortion.size(), 5u);
     EXPECT_EQ(dlt16.camera.distortion[1], 0.0);  // k2 and k3 held at zero by default
     EXPECT_EQ(dlt16.camera.distortion[4], 0.0);
-    // k1 about a centre and focal length from a DLT fitted to distorted
-    // points, not the true ones: near -0.2 but not equal.
-    EXPECT_NEAR(dlt16.camera.distortion[0], -0.2, 0.05) << truth.name;
+    // k1 about the fitted DLT's own principal point and focal length,
+    // which are the true ones once the lens is modelled.
+    EXPECT_NEAR(dlt16.camera.distortion[0], -0.2, 0.005) << truth.name;
+    EXPECT_LT((dlt16.camera.principal_point_px - truth.principal_px).norm(), 1.0) << truth.name;
+    EXPECT_NEAR(dlt16.camera.focal_px, truth.focal_px, 1.0) << truth.name;
     EXPECT_GT(dlt11.fit_rms_px, 1.0) << truth.name;  // a pinhole cannot follow the lens
     EXPECT_LT(dlt16.fit_rms_px, 0.05) << truth.name;
     EXPECT_LT(projection_error(dlt16.camera, truth).max_px, 0.5) << truth.name;
+  }
+}
+
+TEST(FitDlt, StrongBarrelLensFromTenMarkersFindsItsCentre) {
+  // k1 = -0.5 (about 50 px at the image edges) with the optical axis 60 px
+  // off the image centre, 0.2 px of noise, the 10 fit markers only. The
+  // linear DLT's principal point, bent by the lens, starts far from the
+  // axis; the distortion about the DLT's own moving centre, started from
+  // several k1, must still find it.
+  auto cameras = testsupport::two_cameras(-0.5);
+  cameras[0].principal_px += Eigen::Vector2d(40.0, -45.0);
+  cameras[1].principal_px += Eigen::Vector2d(-30.0, 50.0);
+  const auto markers = testsupport::calibration_markers();
+  for (unsigned seed = 1; seed <= 3; ++seed) {
+    const auto views = testsupport::observe(cameras, markers, 0.2, seed);
+    for (std::size_t c = 0; c < cameras.size(); ++c) {
+      std::vector<calibration::Correspondence> fit;
+      for (std::size_t m = 0; m < markers.size(); ++m)
+        if (!markers[m].is_check) fit.push_back({markers[m].id, markers[m].lab_m, views[c].observations[m].second});
+      const auto dlt16 = calibration::fit_dlt(cameras[c].name, fit, {.fit_distortion = true, .tangential = false});
+      std::printf("%s seed %u: k1 %.3f, centre %.1f px off, fit %.2f px\n", cameras[c].name.c_str(), seed,
+                  dlt16.camera.distortion[0], (dlt16.camera.principal_point_px - cameras[c].principal_px).norm(),
+                  dlt16.fit_rms_px);
+      EXPECT_NEAR(dlt16.camera.distortion[0], -0.5, 0.05) << cameras[c].name << " seed " << seed;
+      EXPECT_LT((dlt16.camera.principal_point_px - cameras[c].principal_px).norm(), 15.0) << cameras[c].name;
+      EXPECT_LT(dlt16.fit_rms_px, 0.3) << cameras[c].name << " seed " << seed;  // the noise, not the lens
+      EXPECT_LT(projection_error(dlt16.camera, cameras[c]).max_px, 1.0) << cameras[c].name << " seed " << seed;
+    }
   }
 }
 
