@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <limits>
 #include <atomic>
 #include <optional>
 #include <thread>
@@ -281,12 +282,15 @@ diagnosis::SessionState session_state(const Session& session, const std::functio
   const auto cameras = cameras_of(state.calibration.after);
   // Trials measured through a calibration that failed its own checks, or
   // whose markers reproject far beyond it, are rejected (trial.h's gates).
-  const auto quality = trial::calibration_quality(state.calibration.after);
+  double z_min = std::numeric_limits<double>::infinity(), z_max = -z_min;
+  for (const auto& m : session.frame) z_min = std::min(z_min, m.lab_m.z()), z_max = std::max(z_max, m.lab_m.z());
+  const auto quality = trial::calibration_quality(state.calibration.after, z_max - z_min);
   for (size_t i = 0; i < session.trials.size(); ++i) {
     const auto& trial = session.trials[i];
     if (say) say(fmt::format("trial {} ({}/{})", trial.spec.id, i + 1, session.trials.size()));
     TrialOutcome outcome = process_trial(man, trial, cameras);
     trial::apply_calibration_gates(outcome.result, outcome.trajectories, trial_options(man, trial.spec.id), quality);
+    trial::add_calibration_uncertainty(outcome.result, quality);
     state.fit_data.push_back(fitting_trial(man, outcome.result));
     state.trials.push_back({std::move(outcome.result), std::move(outcome.trajectories), std::move(outcome.force)});
   }

@@ -756,8 +756,10 @@ TrialResult analyse_without_force(const reconstruction::Trajectories& markers, c
                       options);
 }
 
-CalibrationQuality calibration_quality(const calibration::CalibrationResult& calibration) {
+CalibrationQuality calibration_quality(const calibration::CalibrationResult& calibration, double markers_z_span_m) {
   CalibrationQuality q;
+  if (std::isfinite(calibration.check_rms_m.z()) && markers_z_span_m > 0.0)
+    q.vertical_scale_sd = calibration.check_rms_m.z() / markers_z_span_m;
   std::string worst_camera;
   for (const auto& camera : calibration.cameras) {
     // NaN: not measured (coefficients given, e.g. by a wand calibration).
@@ -814,6 +816,12 @@ void apply_calibration_gates(TrialResult& result, const reconstruction::Trajecto
     result.reject_reason += reason;
   }
   result.accepted = false;
+}
+
+void add_calibration_uncertainty(TrialResult& result, const CalibrationQuality& quality) {
+  if (!std::isfinite(quality.vertical_scale_sd) || !std::isfinite(result.impact_velocity_ci_m_s)) return;
+  result.impact_velocity_ci_m_s =
+      std::hypot(result.impact_velocity_ci_m_s, 1.96 * std::abs(result.impact_velocity_m_s) * quality.vertical_scale_sd);
 }
 
 std::string TrialResult::report() const {
