@@ -206,9 +206,20 @@ Trial make_trial(const fitting::FitOptions& current_options, const fitting::FitR
 
 // Refits every trial, `threads` at a time (each fit is one thread).
 void run_trials(const std::vector<fitting::TrialData>& acc, std::vector<Trial>& tries, int threads) {
+  // Longest first, so that the last refit to start is a short one: those
+  // that free the layer masses (a light top layer shortens every step: 0.85
+  // s against 0.15-0.4 s for the others on a five-effect session), then by
+  // the number of parameters freed.
+  std::vector<size_t> order(tries.size());
+  std::iota(order.begin(), order.end(), size_t{0});
+  auto weight = [&](size_t i) {
+    return std::make_pair(tries[i].options.masses_free, tries[i].options.free_effects.size());
+  };
+  std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return weight(a) > weight(b); });
   std::atomic<size_t> next{0};
   auto worker = [&] {
-    for (size_t i; (i = next++) < tries.size();) {
+    for (size_t j; (j = next++) < tries.size();) {
+      const size_t i = order[j];
       try {
         tries[i].fit = fitting::fit(acc, tries[i].options);
         tries[i].errors = held_out_errors(*tries[i].fit, acc, tries[i].options);
