@@ -455,3 +455,35 @@ TEST(DiagnosisJson, MapsOntoTheSpec) {
 
 }  // namespace
 }  // namespace dropfit::diagnosis
+
+namespace dropfit::diagnosis {
+namespace {
+
+// The trajectory estimate's bias (diagnosis.h) on the model's own impact.
+TEST(TrajectoryEstimateBias, MatInertiaAndThePlatesGainReadAsClockOffset) {
+  using fitting::ModelKind;
+  const fitting::MatParams table2 = fitting::paper_table2(ModelKind::Model4);
+  // A massless mat: the plate reads the impactor's force, nothing to correct.
+  const double massless_s = trajectory_estimate_bias_s(ModelKind::Model1, fitting::paper_table2(ModelKind::Model1),
+                                                       5.0, 24.0, 9.81);
+  // The paper's layered mat (2.44 + 3.66 kg): its inertia delays the plate force.
+  const double layered_s = trajectory_estimate_bias_s(ModelKind::Model4, table2, 5.0, 24.0, 9.81);
+  // The same with a plate reading 3 % high, and with a 7 N/s drift from contact.
+  PlateCorrection gain;
+  gain.gain = 1.03;
+  const double gained_s = trajectory_estimate_bias_s(ModelKind::Model4, table2, 5.0, 24.0, 9.81, gain);
+  PlateCorrection drift;
+  drift.drift = drift.drift_from_contact = true;
+  drift.drift_n_s = 7.0;
+  const double drifted_s = trajectory_estimate_bias_s(ModelKind::Model4, table2, 5.0, 24.0, 9.81, drift, 0.5);
+  std::printf("bias: massless %.3f ms, layered %.3f ms, gain 1.03 %.3f ms, drift 7 N/s %.3f ms\n", 1e3 * massless_s,
+              1e3 * layered_s, 1e3 * gained_s, 1e3 * drifted_s);
+  EXPECT_NEAR(massless_s, 0.0, 0.01e-3);
+  EXPECT_LT(layered_s, -0.05e-3);
+  EXPECT_GT(layered_s, -1.0e-3);
+  EXPECT_GT(std::abs(gained_s - layered_s), 0.05e-3);
+  EXPECT_TRUE(std::isnan(trajectory_estimate_bias_s(ModelKind::Model4, table2, -1.0, 24.0, 9.81)));
+}
+
+}  // namespace
+}  // namespace dropfit::diagnosis

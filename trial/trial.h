@@ -45,7 +45,9 @@
 //   offset that fits best (least squares, 0.01 ms grid then parabola). It does
 //   not use mat_top_z_m or the onset, but the plate reads the mat's force,
 //   which differs from the impactor's by the mat's accelerated mass, so it is
-//   a consistency check, not the reported value.
+//   a consistency check, not the reported value (the loop takes that bias,
+//   and the plate's gain and drift, out with the fitted mat model:
+//   diagnosis::trajectory_estimate_bias_s).
 // - Contact height: the mat top as the same cameras see it. When the surface
 //   markers are seen at rest (their mean over at least min_rest_frames
 //   frames before the face first comes within 20 mm of the mat) within
