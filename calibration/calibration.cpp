@@ -490,45 +490,78 @@ DltFit fit_dlt(const std::string& camera_name, const std::vector<Correspondence>
       // centre from that optimum and from the linear DLT with k1 seeded
       // across the range of real lenses; the lowest cost is kept (every
       // start fits the same parameters).
-      const Eigen::Vector2d centre0 = fit.camera.principal_point_px;
-      const double focal0 = fit.camera.focal_px;
-      double q_linear[11];
-      std::copy(q, q + 11, q_linear);
-      double best_cost = refine(label, lab_n, image, image_norm, options, q, d, centre0, focal0);
-      Eigen::Vector2d best_centre = centre0;
-      double best_focal = focal0;
-      double q_fixed[11], d_fixed[5];
-      std::copy(q, q + 11, q_fixed);
-      std::copy(d, d + 5, d_fixed);
-      auto from = [&](const double* q_start, const double* d_start) {
+      // From the given start (its terms that these options hold, zeroed).
+      bool warm = false;
+      if (options.start && options.start->distortion.size() == 5) {
+        // Q = U P T^-1, scaled to Q(2,3) = 1 (the inverse of to_camera).
+        Eigen::Matrix3d U = Eigen::Matrix3d::Identity();
+        U.topLeftCorner<2, 2>() *= image_norm.scale;
+        U.topRightCorner<2, 1>() = -image_norm.scale * image_norm.centroid;
+        const Matrix34d Q = U * options.start->image_from_lab() * T.inverse();
         double qs[11], ds[5];
-        std::copy(q_start, q_start + 11, qs);
-        std::copy(d_start, d_start + 5, ds);
-        double cost = std::numeric_limits<double>::infinity();
+        for (int k = 0; k < 11; ++k) qs[k] = std::abs(Q(2, 3)) > 0.0 ? Q(k / 4, k % 4) / Q(2, 3) : 0.0;
+        for (int k = 0; k < 5; ++k) ds[k] = options.start->distortion[static_cast<std::size_t>(k)];
+        if (options.radial_terms < 1) ds[0] = 0.0;
+        if (options.radial_terms < 2) ds[1] = 0.0;
+        if (!options.tangential) ds[2] = ds[3] = 0.0;
+        if (options.radial_terms < 3) ds[4] = 0.0;
         try {
-          cost = refine(label, lab_n, image, image_norm, options, qs, ds);
+          if (std::abs(Q(2, 3)) > 0.0) {
+            refine(label, lab_n, image, image_norm, options, qs, ds);
+            Eigen::Vector2d centre;
+            double focal = 0.0;
+            if (decompose(to_camera(qs).dlt, &centre, &focal)) {
+              fit.camera = to_camera(qs);
+              fit.camera.distortion.assign(ds, ds + 5);
+              fit.camera.principal_point_px = centre;
+              fit.camera.focal_px = focal;
+              warm = true;
+            }
+          }
         } catch (const Error&) {
-          return;
         }
-        Eigen::Vector2d centre;
-        double focal = 0.0;
-        if (!(cost < best_cost) || !decompose(to_camera(qs).dlt, &centre, &focal)) return;
-        best_cost = cost;
-        best_centre = centre;
-        best_focal = focal;
-        std::copy(qs, qs + 11, q);
-        std::copy(ds, ds + 5, d);
-      };
-      from(q_fixed, d_fixed);
-      if (options.radial_terms >= 1)  // k1 free
-        for (double k1 : kDistortionSeedsK1) {
-          const double d_seed[5] = {k1, 0.0, 0.0, 0.0, 0.0};
-          from(q_linear, d_seed);
-        }
-      fit.camera = to_camera(q);
-      fit.camera.distortion.assign(d, d + 5);
-      fit.camera.principal_point_px = best_centre;
-      fit.camera.focal_px = best_focal;
+      }
+      if (!warm) {
+        const Eigen::Vector2d centre0 = fit.camera.principal_point_px;
+        const double focal0 = fit.camera.focal_px;
+        double q_linear[11];
+        std::copy(q, q + 11, q_linear);
+        double best_cost = refine(label, lab_n, image, image_norm, options, q, d, centre0, focal0);
+        Eigen::Vector2d best_centre = centre0;
+        double best_focal = focal0;
+        double q_fixed[11], d_fixed[5];
+        std::copy(q, q + 11, q_fixed);
+        std::copy(d, d + 5, d_fixed);
+        auto from = [&](const double* q_start, const double* d_start) {
+          double qs[11], ds[5];
+          std::copy(q_start, q_start + 11, qs);
+          std::copy(d_start, d_start + 5, ds);
+          double cost = std::numeric_limits<double>::infinity();
+          try {
+            cost = refine(label, lab_n, image, image_norm, options, qs, ds);
+          } catch (const Error&) {
+            return;
+          }
+          Eigen::Vector2d centre;
+          double focal = 0.0;
+          if (!(cost < best_cost) || !decompose(to_camera(qs).dlt, &centre, &focal)) return;
+          best_cost = cost;
+          best_centre = centre;
+          best_focal = focal;
+          std::copy(qs, qs + 11, q);
+          std::copy(ds, ds + 5, d);
+        };
+        from(q_fixed, d_fixed);
+        if (options.radial_terms >= 1)  // k1 free
+          for (double k1 : kDistortionSeedsK1) {
+            const double d_seed[5] = {k1, 0.0, 0.0, 0.0, 0.0};
+            from(q_linear, d_seed);
+          }
+        fit.camera = to_camera(q);
+        fit.camera.distortion.assign(d, d + 5);
+        fit.camera.principal_point_px = best_centre;
+        fit.camera.focal_px = best_focal;
+      }
     }
   }
 
@@ -630,7 +663,9 @@ class Calibrator {
         const DltFit* fit = &base_fits[c];
         if (seen_[c][m].allFinite()) {
           try {
-            refit = fit_camera(c, without, dlt);
+            DltOptions warm = dlt;  // a fold starts from the fit on all the markers
+            warm.start = &pass.base[static_cast<std::size_t>(c)];
+            refit = fit_camera(c, without, warm);
           } catch (const Error&) {
             ok = false;  // too few points left, or degenerate without this one
             break;

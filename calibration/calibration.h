@@ -90,6 +90,11 @@ struct DltOptions {
   // (k1 k2 k3), and whether p1 p2 are; the others are held at zero.
   int radial_terms = 1;
   bool tangential = true;
+  // With fit_distortion: a camera fitted to nearly the same points (the
+  // leave-one-out folds start from the fit on all of them). The fit then
+  // runs once, from it, instead of from the several starts above; the
+  // starts are the fallback when that fails. Not owned.
+  const Camera* start = nullptr;
 
   // Throws dropfit::Error naming the field and value when radial_terms is
   // outside 0-3, or distortion is asked for with no term to fit.

@@ -181,7 +181,10 @@ CrossValidation cross_validate(const Scene& s, const Model& model) {
       if (m == skip || model.dropped.count(m) || !px.allFinite()) continue;
       pts.push_back({s.markers[static_cast<std::size_t>(m)].id, s.markers[static_cast<std::size_t>(m)].lab_m, px});
     }
-    return calibration::fit_dlt(s.cameras[static_cast<std::size_t>(c)], pts, model.dlt);
+    calibration::DltOptions o = model.dlt;
+    // A fold starts from the fit on all the markers.
+    if (skip >= 0 && static_cast<std::size_t>(c) < cv.full.size()) o.start = &cv.full[static_cast<std::size_t>(c)];
+    return calibration::fit_dlt(s.cameras[static_cast<std::size_t>(c)], pts, o);
   };
   try {
     for (int c = 0; c < nc; ++c) {
