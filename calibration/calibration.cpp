@@ -142,7 +142,7 @@ struct DistortedDltReprojection {
     return true;
   }
 
-  // decompose() (below) on the pixel DLT of the normalised coefficients q:
+  // principal_point_and_focal() on the pixel DLT of the normalised q:
   // its rows' left 3 x 3 are a = qa / s + cx qc, b = qb / s + cy qc, c = qc
   // (the lab points' scaling multiplies all three alike and cancels).
   template <typename T>
@@ -179,22 +179,6 @@ struct DistortedDltReprojection {
   Eigen::Vector2d fixed_centre_px_;
   double fixed_focal_px_;
 };
-
-// Principal point and mean focal length of a DLT (the standard decomposition,
-// e.g. Kwon's DLT notes): with D = L9^2 + L10^2 + L11^2,
-//   u0 = (L1 L9 + L2 L10 + L3 L11) / D,  v0 = (L5 L9 + L6 L10 + L7 L11) / D
-//   fu^2 = (L1^2 + L2^2 + L3^2) / D - u0^2, likewise fv.
-bool decompose(const Dlt11& L, Eigen::Vector2d* principal_px, double* focal_px) {
-  const Eigen::Vector3d a(L[0], L[1], L[2]), b(L[4], L[5], L[6]), c(L[8], L[9], L[10]);
-  const double D = c.squaredNorm();
-  if (!(D > 0.0)) return false;
-  const double u0 = a.dot(c) / D, v0 = b.dot(c) / D;
-  const double fu2 = a.squaredNorm() / D - u0 * u0, fv2 = b.squaredNorm() / D - v0 * v0;
-  if (!(fu2 > 0.0 && fv2 > 0.0)) return false;
-  *principal_px = {u0, v0};
-  *focal_px = 0.5 * (std::sqrt(fu2) + std::sqrt(fv2));
-  return true;
-}
 
 // The k1 the moving-centre refinement starts from besides the fixed-centre
 // optimum (radius normalised by the focal length): barrel to pincushion
@@ -342,6 +326,22 @@ Camera Camera::from_image_from_lab(std::string name, const Matrix34d& image_from
   return camera;
 }
 
+// Principal point and mean focal length of a DLT (the standard decomposition,
+// e.g. Kwon's DLT notes): with D = L9^2 + L10^2 + L11^2,
+//   u0 = (L1 L9 + L2 L10 + L3 L11) / D,  v0 = (L5 L9 + L6 L10 + L7 L11) / D
+//   fu^2 = (L1^2 + L2^2 + L3^2) / D - u0^2, likewise fv.
+bool principal_point_and_focal(const Dlt11& L, Eigen::Vector2d* principal_px, double* focal_px) {
+  const Eigen::Vector3d a(L[0], L[1], L[2]), b(L[4], L[5], L[6]), c(L[8], L[9], L[10]);
+  const double D = c.squaredNorm();
+  if (!(D > 0.0)) return false;
+  const double u0 = a.dot(c) / D, v0 = b.dot(c) / D;
+  const double fu2 = a.squaredNorm() / D - u0 * u0, fv2 = b.squaredNorm() / D - v0 * v0;
+  if (!(fu2 > 0.0 && fv2 > 0.0)) return false;
+  *principal_px = {u0, v0};
+  *focal_px = 0.5 * (std::sqrt(fu2) + std::sqrt(fv2));
+  return true;
+}
+
 // ---- fit_dlt ----------------------------------------------------------------
 
 namespace {
@@ -471,7 +471,7 @@ DltFit fit_dlt(const std::string& camera_name, const std::vector<Correspondence>
 
   double d[5] = {0.0, 0.0, 0.0, 0.0, 0.0};
   if (options.fit_distortion) {
-    if (!decompose(fit.camera.dlt, &fit.camera.principal_point_px, &fit.camera.focal_px))
+    if (!principal_point_and_focal(fit.camera.dlt, &fit.camera.principal_point_px, &fit.camera.focal_px))
       throw Error(fmt::format("{}: the linear DLT has no principal point and focal length (degenerate fit)", label));
   }
   if (options.refine || options.fit_distortion) {
@@ -510,7 +510,7 @@ DltFit fit_dlt(const std::string& camera_name, const std::vector<Correspondence>
             refine(label, lab_n, image, image_norm, options, qs, ds);
             Eigen::Vector2d centre;
             double focal = 0.0;
-            if (decompose(to_camera(qs).dlt, &centre, &focal)) {
+            if (principal_point_and_focal(to_camera(qs).dlt, &centre, &focal)) {
               fit.camera = to_camera(qs);
               fit.camera.distortion.assign(ds, ds + 5);
               fit.camera.principal_point_px = centre;
@@ -544,7 +544,7 @@ DltFit fit_dlt(const std::string& camera_name, const std::vector<Correspondence>
           }
           Eigen::Vector2d centre;
           double focal = 0.0;
-          if (!(cost < best_cost) || !decompose(to_camera(qs).dlt, &centre, &focal)) return;
+          if (!(cost < best_cost) || !principal_point_and_focal(to_camera(qs).dlt, &centre, &focal)) return;
           best_cost = cost;
           best_centre = centre;
           best_focal = focal;

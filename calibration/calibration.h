@@ -76,6 +76,11 @@ struct Camera {
   static Camera from_image_from_lab(std::string name, const Matrix34d& image_from_lab);
 };
 
+// The principal point and mean focal length (pixels) of a DLT, the
+// decomposition above: the lens distortion's centre and radius scale. False
+// when the DLT has none (L9..L11 zero, or a negative squared focal length).
+bool principal_point_and_focal(const Dlt11& dlt, Eigen::Vector2d* principal_px, double* focal_px);
+
 // One correspondence of a calibration marker in one camera.
 struct Correspondence {
   std::string id;

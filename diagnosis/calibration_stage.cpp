@@ -17,18 +17,6 @@
 namespace dropfit::diagnosis {
 namespace {
 
-// Principal point and focal length (pixels) of a DLT (the decomposition
-// calibration.h describes), for the radius of a distortion-free camera.
-void decompose(const calibration::Dlt11& L, Eigen::Vector2d* centre_px, double* focal_px) {
-  const double d = L(8) * L(8) + L(9) * L(9) + L(10) * L(10);
-  const double u0 = (L(0) * L(8) + L(1) * L(9) + L(2) * L(10)) / d;
-  const double v0 = (L(4) * L(8) + L(5) * L(9) + L(6) * L(10)) / d;
-  const double fu2 = (L(0) * L(0) + L(1) * L(1) + L(2) * L(2)) / d - u0 * u0;
-  const double fv2 = (L(4) * L(4) + L(5) * L(5) + L(6) * L(6)) / d - v0 * v0;
-  *centre_px = {u0, v0};
-  *focal_px = 0.5 * (std::sqrt(std::max(fu2, 1e-12)) + std::sqrt(std::max(fv2, 1e-12)));
-}
-
 // Every marker image's reprojection residual split into its radial part
 // (along the ray from the image centre) and the normalised radius there.
 struct Reprojection {
@@ -43,12 +31,12 @@ Reprojection reprojection(const calibration::CalibrationResult& result, const st
   for (std::size_t c = 0; c < views.size() && c < result.cameras.size(); ++c) {
     const calibration::Camera& cam = result.cameras[c].camera;
     Eigen::Vector2d centre;
-    double focal;
+    double focal = 0.0;
     if (cam.has_distortion()) {
       centre = cam.principal_point_px;
       focal = cam.focal_px;
-    } else {
-      decompose(cam.dlt, &centre, &focal);
+    } else if (!calibration::principal_point_and_focal(cam.dlt, &centre, &focal)) {
+      continue;  // no principal point: no radius to judge a lens by
     }
     for (const auto& [id, px] : views[c].observations) {
       const auto it = lab.find(id);
