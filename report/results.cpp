@@ -279,14 +279,16 @@ std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg) {
 
 std::string fit_series_csv(const fitting::TrialData& measured, const fitting::TrialReport& report) {
   std::string out =
-      "t_s,measured_fz_n,simulated_fz_n,measured_impactor_m,simulated_impactor_m,measured_surface_m,simulated_surface_m\n";
+      "t_s,measured_fz_n,simulated_fz_n,measured_impactor_m,simulated_impactor_m,measured_surface_m,simulated_surface_m,"
+      "simulated_layer1_m,simulated_layer2_m\n";
   const auto& sim = report.simulation;
   const Eigen::Index n = std::min<Eigen::Index>(measured.t_s.size(), sim.t_s.size());
   auto at = [](const Eigen::VectorXd& v, Eigen::Index i) { return i < v.size() ? v[i] : NAN; };
   for (Eigen::Index i = 0; i < n; ++i) {
-    out += fmt::format("{},{},{},{},{},{},{}\n", csv_number(measured.t_s[i]), csv_number(measured.grf_n[i]),
+    out += fmt::format("{},{},{},{},{},{},{},{},{}\n", csv_number(measured.t_s[i]), csv_number(measured.grf_n[i]),
                        csv_number(sim.grf_n[i]), csv_number(at(measured.impactor_m, i)), csv_number(sim.impactor_m[i]),
-                       csv_number(at(measured.surface_m, i)), csv_number(sim.surface_m[i]));
+                       csv_number(at(measured.surface_m, i)), csv_number(sim.surface_m[i]), csv_number(at(sim.layer1_m, i)),
+                       csv_number(at(sim.layer2_m, i)));
   }
   return out;
 }

@@ -55,7 +55,8 @@ std::string summary_csv(const std::vector<trial::TrialResult>& trials);
 // errors, identifiability warnings, key characteristics and sensitivity.
 std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg);
 // Measured and simulated series of one trial from contact:
-// t_s,measured_fz_n,simulated_fz_n,measured_impactor_m,simulated_impactor_m,measured_surface_m,simulated_surface_m
+// t_s,measured_fz_n,simulated_fz_n,measured_impactor_m,simulated_impactor_m,measured_surface_m,simulated_surface_m,
+// simulated_layer1_m,simulated_layer2_m (the layers' travel, zero for a model without layers)
 std::string fit_series_csv(const fitting::TrialData& measured, const fitting::TrialReport& report);
 
 // A simulated impact: t_s,grf_n,impactor_m,surface_m.

@@ -2,15 +2,18 @@
 // the all-or-nothing output set.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <sstream>
 
 #include "core/error.h"
 #include "report/html.h"
 #include "report/output.h"
 #include "report/plot.h"
+#include "report/results.h"
 
 namespace fs = std::filesystem;
 using namespace dropfit::report;
@@ -97,4 +100,41 @@ TEST(OutputSet, WritesNothingWhenOneFileCannotBeWritten) {
   for ([[maybe_unused]] const auto& e : fs::directory_iterator(root / "out")) ++entries;
   EXPECT_EQ(entries, 1u);  // only the file that was in the way; no temporary left
   fs::remove_all(root);
+}
+
+// The fit's series carry the layers' travel (what the mat-surface markers
+// see, through the dish) beside the measured surface, one row a sample,
+// the measured gaps empty.
+TEST(FitSeriesCsv, CarriesTheLayersTravelBesideTheMeasuredSurface) {
+  dropfit::fitting::TrialData measured;
+  measured.t_s = Eigen::Vector3d(-0.001, 0.0, 0.001);
+  measured.grf_n = Eigen::Vector3d(0.0, 5.0, 400.0);
+  measured.impactor_m = Eigen::Vector3d(-0.004, 0.0, 0.004);
+  measured.surface_m = Eigen::Vector3d(0.0, std::numeric_limits<double>::quiet_NaN(), 0.0005);
+  dropfit::fitting::TrialReport rep;
+  rep.simulation.t_s = measured.t_s;
+  rep.simulation.grf_n = Eigen::Vector3d(0.0, 0.0, 410.0);
+  rep.simulation.impactor_m = Eigen::Vector3d(-0.004, 0.0, 0.0041);
+  rep.simulation.surface_m = Eigen::Vector3d(0.0, 0.0, 0.0041);
+  rep.simulation.layer1_m = Eigen::Vector3d(0.0, 0.0, 0.0007);
+  rep.simulation.layer2_m = Eigen::Vector3d(0.0, 0.0, 0.0002);
+  const std::string csv = fit_series_csv(measured, rep);
+  std::istringstream in(csv);
+  std::string header, row;
+  std::getline(in, header);
+  EXPECT_EQ(header,
+            "t_s,measured_fz_n,simulated_fz_n,measured_impactor_m,simulated_impactor_m,measured_surface_m,"
+            "simulated_surface_m,simulated_layer1_m,simulated_layer2_m");
+  int rows = 0;
+  std::string last;
+  while (std::getline(in, row)) {
+    ++rows;
+    last = row;
+    EXPECT_EQ(std::count(row.begin(), row.end(), ','), 8) << row;
+  }
+  EXPECT_EQ(rows, 3);
+  // The last row's two layer columns, read back within 1e-12 m.
+  const size_t c7 = last.rfind(',', last.rfind(',') - 1);
+  EXPECT_NEAR(std::stod(last.substr(c7 + 1)), 0.0007, 1e-12);
+  EXPECT_NEAR(std::stod(last.substr(last.rfind(',') + 1)), 0.0002, 1e-12);
 }
