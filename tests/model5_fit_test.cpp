@@ -102,8 +102,10 @@ TEST(Model5Fit, ExactDerivativesMatchCentralDifferences) {
 TEST(Model5Fit, ExactDerivativesFitAsTheNumericPathDid) {
   // The same warm-started fit (one start, as the pipeline runs Model 5)
   // with exact derivatives and through a simulate callback (central
-  // differences): the same optimum. 0.2 %: the Jacobians differ by ~1e-8
-  // relative, and both runs stop at the same iteration cap.
+  // differences): the same optimum. Both run to convergence (60
+  // iterations; at a cap of 30 neither had converged and their paths, not
+  // their optima, were compared). 0.2 %: the Jacobians differ by ~1e-8
+  // relative (the optima agree to 1e-5).
   const MatParams truth = paper_table2(ModelKind::Model5);
   const auto trials = model5_trials(truth, 20.0, 5e-4);
   FitOptions o;
@@ -111,7 +113,7 @@ TEST(Model5Fit, ExactDerivativesFitAsTheNumericPathDid) {
   o.sensitivity = false;
   o.initial = scaled(truth, 1.3, 0.7);
   o.starts = 1;
-  o.max_iterations = 30;
+  o.max_iterations = 60;
   const FitResult exact = fit(trials, o);
   FitOptions n = o;
   n.simulator = [](const MatParams& p, const Impact& imp) { return simulate_model5(p, Model5Geometry{}, imp); };
