@@ -35,6 +35,7 @@ void add_calibrate(CLI::App& app, CommandContext& /*ctx*/) {
     // By default the camera model every later stage uses: outliers and lens
     // distortion decided by cross-validation on every marker.
     calibration::CalibrationResult result;
+    std::vector<std::string> left_out;
     if (args->distortion) {
       calibration::CalibrationOptions options;
       options.dlt.fit_distortion = true;
@@ -44,12 +45,17 @@ void add_calibrate(CLI::App& app, CommandContext& /*ctx*/) {
       for (const auto& e : choice.effects) fmt::print("{}: {}\n", e.name, e.evidence);
       for (const auto& r : choice.remaining) fmt::print("unexplained {}: {}\n", r.name, r.description);
       result = choice.after;
+      left_out = choice.dropped_markers;
     }
 
     report::OutputSet out;
     pipeline::add_calibration_outputs(out, result, manifest.video);
     out.commit(args->out, {args->session});
     fmt::print("{}", result.report());
+    // The report above is of the markers kept; those the stage left out
+    // are named here, so that "outliers: none" is not read as all of them.
+    if (!left_out.empty())
+      fmt::print("  left out of every fit by the calibration stage: {}\n", fmt::join(left_out, ", "));
     fmt::print("wrote {}/calibration.json\n", args->out);
   });
 }
