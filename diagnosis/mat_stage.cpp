@@ -467,21 +467,35 @@ std::optional<fitting::FitResult> warm_refit(const std::vector<fitting::TrialDat
 // the candidate's gain was the basin, not the effect: returns that fit.
 std::optional<fitting::FitResult> better_baseline(const std::vector<fitting::TrialData>& acc,
                                                   const fitting::FitOptions& current_options,
-                                                  const fitting::FitResult& current, const std::vector<Trial>& tries) {
+                                                  const fitting::FitResult& current, const std::vector<Trial>& tries,
+                                                  int threads) {
+  // The refits first, `threads` at a time (each on one thread); then the
+  // same choice in the candidates' order as when they ran one by one.
+  std::vector<std::optional<fitting::FitResult>> refits(tries.size());
+  std::atomic<size_t> next{0};
+  auto worker = [&] {
+    for (size_t i; (i = next++) < tries.size();) {
+      const Trial& t = tries[i];
+      if (!t.fit) continue;
+      MatParams p = t.fit->params;
+      // Back to the current model's own effects and masses.
+      const MatParams& c = current.params;
+      p.k1_cubic_n_m3 = c.k1_cubic_n_m3;
+      p.r1_unload_n_s_m = c.r1_unload_n_s_m;
+      p.maxwell_k_n_m = c.maxwell_k_n_m;
+      p.maxwell_tau_s = c.maxwell_tau_s;
+      p.k1_unload_ratio = c.k1_unload_ratio;
+      p.m1_kg = c.m1_kg;
+      p.m2_kg = c.m2_kg;
+      refits[i] = warm_refit(acc, current_options, p);
+    }
+  };
+  std::vector<std::thread> pool;
+  for (int w = 1; w < std::max(1, threads); ++w) pool.emplace_back(worker);
+  worker();
+  for (auto& th : pool) th.join();
   std::optional<fitting::FitResult> best;
-  for (const Trial& t : tries) {
-    if (!t.fit) continue;
-    MatParams p = t.fit->params;
-    // Back to the current model's own effects and masses.
-    const MatParams& c = current.params;
-    p.k1_cubic_n_m3 = c.k1_cubic_n_m3;
-    p.r1_unload_n_s_m = c.r1_unload_n_s_m;
-    p.maxwell_k_n_m = c.maxwell_k_n_m;
-    p.maxwell_tau_s = c.maxwell_tau_s;
-    p.k1_unload_ratio = c.k1_unload_ratio;
-    p.m1_kg = c.m1_kg;
-    p.m2_kg = c.m2_kg;
-    std::optional<fitting::FitResult> r = warm_refit(acc, current_options, p);
+  for (auto& r : refits) {
     // Beyond chance: twice the cost drop (noise units) above chi-square(1)'s 95 % point.
     const double ref = best ? best->cost : current.cost;
     if (r && 2.0 * (ref - r->cost) > 3.84) best = std::move(r);
@@ -587,7 +601,7 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
     // A candidate that reached a basin the current model's own search
     // missed: the current model moves there, and the candidates are judged
     // against it (their refits are the same: each is its own multi-start).
-    if (auto better = better_baseline(acc, current_options, current, tries)) {
+    if (auto better = better_baseline(acc, current_options, current, tries, options.threads)) {
       out.notes.push_back(fmt::format(
           "mat: the model without the candidate's term, refitted from a candidate's optimum, fits better than its "
           "own multi-start did (cost {:.1f} -> {:.1f}): it replaces the {} the candidates are judged against",

@@ -31,7 +31,9 @@
 //
 // Parameters: stiffness and damping are fitted as logarithms, bounded by
 // physics: each series spring is at least a fraction of the effective
-// stiffness F_peak / travel_max measured on the training trials and at most
+// stiffness F_peak / travel_max measured on the training trials (a
+// stiffening top element with its secant k1 + k1_cubic x^2: with k1_cubic
+// free, k1 alone keeps only the absolute floor) and at most
 // a multiple of it beyond which it is rigid for this mat; damping between
 // ~0 and several times critical. Layer masses are fixed to the manifest, or
 // free with their total fixed (fitted as the top layer's fraction, as the
@@ -39,7 +41,8 @@
 // unless fixed.
 // Search: quasi-random starts spanning the bounds in log space plus, for the
 // chains (Models 3-5), every ordering of the series springs (soft, medium,
-// stiff); all starts are screened by cost, and Levenberg-Marquardt (Ceres,
+// stiff), each with a freed effect absent and present (a quarter into its
+// start range); all starts are screened by cost, and Levenberg-Marquardt (Ceres,
 // automatic differentiation through the templated simulation) runs from the
 // best start of every ordering and the best overall, spread over threads.
 // Distinct optima that fit within noise of the best are reported
