@@ -154,59 +154,22 @@ double trajectory_estimate_bias_s(fitting::ModelKind model, const fitting::MatPa
   }
   const Eigen::Index n = sim.t_s.size();
   if (n < 20) return std::numeric_limits<double>::quiet_NaN();
-  const double dt = imp.output_dt_s, end = std::isfinite(sim.separation_s) ? sim.separation_s : sim.t_s(n - 1);
+  const double end = std::isfinite(sim.separation_s) ? sim.separation_s : sim.t_s(n - 1);
   // What the plate reads: gain x force + drift (PlateCorrection::apply inverted).
   Eigen::VectorXd read_n = plate.gain * sim.grf_n;
   if (plate.drift && std::isfinite(contact_time_s)) {
     const Eigen::VectorXd t_force = sim.t_s.array() + contact_time_s;
     read_n -= plate.gain * plate.apply(t_force, Eigen::VectorXd::Zero(n), contact_time_s);
   }
-  // Double integral of the plate force over the impactor mass (trapezoids;
-  // the force is zero before contact), and the face's lag behind free fall.
-  Eigen::VectorXd disp = Eigen::VectorXd::Zero(n);
-  double vel = 0.0;
-  for (Eigen::Index k = 1; k < n; ++k) {
-    const double v_new = vel + 0.5 * (read_n(k - 1) + read_n(k)) / mass_kg * dt;
-    disp(k) = disp(k - 1) + 0.5 * (vel + v_new) * dt;
-    vel = v_new;
-  }
-  auto disp_at = [&](double t) {
-    if (t <= sim.t_s(0)) return 0.0;
-    const double x = (t - sim.t_s(0)) / dt;
-    const auto i = static_cast<Eigen::Index>(x);
-    if (i >= n - 1) return disp(n - 1);
-    return disp(i) + (x - static_cast<double>(i)) * (disp(i + 1) - disp(i));
-  };
+  // The face's lag behind free fall, matched as the trial matches it
+  // (trial::trajectory_shift_s; the force is zero before contact).
   std::vector<double> tk, dz;
   for (Eigen::Index k = 0; k < n && sim.t_s(k) <= end; ++k) {
     const double t = sim.t_s(k);
     tk.push_back(t);
     dz.push_back(velocity_m_s * t + 0.5 * gravity_m_s2 * t * t - sim.impactor_m(k));
   }
-  if (tk.size() < 10) return std::numeric_limits<double>::quiet_NaN();
-  auto cost = [&](double delta) {
-    double sum = 0.0;
-    for (std::size_t i = 0; i < tk.size(); ++i) {
-      const double r = dz[i] - disp_at(tk[i] - delta);
-      sum += r * r;
-    }
-    return sum;
-  };
-  // As the trial's estimate: +-5 ms on a 0.01 ms grid, then a parabola.
-  const double step = 1e-5;
-  const int steps = 500;
-  std::vector<double> c(2 * steps + 1);
-  int best_k = 0;
-  for (int k = -steps; k <= steps; ++k) {
-    c[k + steps] = cost(k * step);
-    if (c[k + steps] < c[best_k + steps]) best_k = k;
-  }
-  double refine = 0.0;
-  if (best_k > -steps && best_k < steps) {
-    const double cm = c[best_k + steps - 1], c0 = c[best_k + steps], cp = c[best_k + steps + 1];
-    if (cm - 2.0 * c0 + cp > 0.0) refine = 0.5 * (cm - cp) / (cm - 2.0 * c0 + cp);
-  }
-  return (best_k + refine) * step;
+  return trial::trajectory_shift_s(sim.t_s, read_n, 0, mass_kg, tk, dz, 0.0);
 }
 
 namespace {

@@ -483,3 +483,29 @@ TEST(Trial, BaseTiltFromTwoOrMoreMarkers) {
               7.0, 1e-9);
   EXPECT_TRUE(std::isnan(tr::base_tilt_deg({{0, 0, 0}, {std::nan(""), 0, 0}})));
 }
+
+// The trajectory match on its own: a force ramping from zero at t = 0 on a
+// 1 kHz record, the face's lag behind free fall its double integral over the
+// mass, seen 1.37 ms late on the video clock; the shift comes back within
+// 0.01 ms (the grid's step; the parabola does better on a smooth cost), and
+// fewer than ten lag points give NaN.
+TEST(TrajectoryShift, FindsTheShiftOfTheForcesDoubleIntegral) {
+  const double m = 24.0, a = 4e5, shift = 1.37e-3;  // force a t (N) from t = 0
+  const int n = 200;
+  Eigen::VectorXd t(n), f(n);
+  for (int k = 0; k < n; ++k) {
+    t[k] = -0.02 + 1e-3 * k;
+    f[k] = t[k] > 0.0 ? a * t[k] : 0.0;
+  }
+  std::vector<double> lt, lag;
+  for (int i = 0; i < 60; ++i) {
+    const double tv = 0.002 + 1e-3 * i, tf = tv - shift;  // video time, force time
+    lt.push_back(tv);
+    lag.push_back(tf > 0.0 ? a * tf * tf * tf / (6.0 * m) : 0.0);
+  }
+  EXPECT_NEAR(dropfit::trial::trajectory_shift_s(t, f, 0, m, lt, lag, 0.0), shift, 1e-5);
+  EXPECT_NEAR(dropfit::trial::trajectory_shift_s(t, f, 0, m, lt, lag, 0.002), shift, 1e-5);
+  lt.resize(9);
+  lag.resize(9);
+  EXPECT_TRUE(std::isnan(dropfit::trial::trajectory_shift_s(t, f, 0, m, lt, lag, 0.0)));
+}

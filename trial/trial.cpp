@@ -450,52 +450,19 @@ double trajectory_offset_s(const forceplate::ForceTrial& force, const Eigen::Vec
                            double video_offset_s, double start_v, double end_v, const TrialOptions& o,
                            const VideoClock& clock) {
   const Eigen::VectorXd& t = force.plate.t_s;
-  const Eigen::VectorXd fz = force.plate.f_n.col(2);
   const Eigen::Index n = t.size();
   const int nf = static_cast<int>(h.size());
   const Eigen::Index k0 = std::max<Eigen::Index>(0, force.contact_index - 5);
-  Eigen::VectorXd disp = Eigen::VectorXd::Zero(n);
-  double vel = 0.0;
-  for (Eigen::Index k = k0 + 1; k < n; ++k) {
-    const double step = t[k] - t[k - 1];
-    const double v_new = vel + 0.5 * (fz[k - 1] + fz[k]) / o.impactor_mass_kg * step;
-    disp[k] = disp[k - 1] + 0.5 * (vel + v_new) * step;
-    vel = v_new;
-  }
-  const double dt_f = (t[n - 1] - t[0]) / static_cast<double>(n - 1);
   std::vector<double> tv, dz;
   const double search = 0.005;
+  // Only frames whose every shifted time stays inside the record.
   for (int i = std::max(0, static_cast<int>(std::ceil(clock.frame(start_v)))); i < nf && clock.time(i) <= end_v; ++i) {
     const double tf = clock.time(i) - video_offset_s;
     if (!std::isfinite(h[i]) || tf - search < t[0] || tf + search > t[n - 1]) continue;
     tv.push_back(clock.time(i));
     dz.push_back(h[i] - ff.height_at(clock.time(i), o.gravity_m_s2));
   }
-  if (tv.size() < 10) return kNaN;
-  auto cost = [&](double delta) {
-    double sum = 0.0;
-    for (std::size_t i = 0; i < tv.size(); ++i) {
-      const double r = dz[i] - interpolate_uniform(disp, t[0], dt_f, tv[i] - delta);
-      sum += r * r;
-    }
-    return sum;
-  };
-  const double step = 1e-5;
-  const int steps = static_cast<int>(std::lround(search / step));
-  double best = std::numeric_limits<double>::infinity();
-  int best_k = 0;
-  std::vector<double> c(2 * steps + 1);
-  for (int k = -steps; k <= steps; ++k) {
-    c[k + steps] = cost(video_offset_s + k * step);
-    if (c[k + steps] < best) best = c[k + steps], best_k = k;
-  }
-  double refine = 0.0;
-  if (best_k > -steps && best_k < steps) {
-    const double cm = c[best_k + steps - 1], c0 = c[best_k + steps], cp = c[best_k + steps + 1];
-    const double curv = cm - 2.0 * c0 + cp;
-    if (curv > 0.0) refine = 0.5 * (cm - cp) / curv;
-  }
-  return video_offset_s + (best_k + refine) * step;
+  return trajectory_shift_s(t, force.plate.f_n.col(2), k0, o.impactor_mass_kg, tv, dz, video_offset_s, search);
 }
 
 // Force spikes, the impulse to maximum deformation against the video's
@@ -633,6 +600,53 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
 }
 
 }  // namespace
+
+// See trial.h.
+double trajectory_shift_s(const Eigen::VectorXd& force_t_s, const Eigen::VectorXd& force_n, Eigen::Index force_first,
+                          double mass_kg, const std::vector<double>& lag_t_s, const std::vector<double>& lag_m,
+                          double centre_s, double search_s) {
+  const Eigen::VectorXd& t = force_t_s;
+  const Eigen::Index n = t.size();
+  if (lag_t_s.size() < 10 || lag_m.size() != lag_t_s.size() || n < 2 || force_n.size() != n) return kNaN;
+  Eigen::VectorXd disp = Eigen::VectorXd::Zero(n);
+  double vel = 0.0;
+  for (Eigen::Index k = std::max<Eigen::Index>(0, force_first) + 1; k < n; ++k) {
+    const double step = t[k] - t[k - 1];
+    const double v_new = vel + 0.5 * (force_n[k - 1] + force_n[k]) / mass_kg * step;
+    disp[k] = disp[k - 1] + 0.5 * (vel + v_new) * step;
+    vel = v_new;
+  }
+  const double dt = (t[n - 1] - t[0]) / static_cast<double>(n - 1);
+  auto disp_at = [&](double x) {
+    if (x <= t[0]) return 0.0;
+    if (x >= t[n - 1]) return disp[n - 1];
+    return interpolate_uniform(disp, t[0], dt, x);
+  };
+  auto cost = [&](double delta) {
+    double sum = 0.0;
+    for (std::size_t i = 0; i < lag_t_s.size(); ++i) {
+      const double r = lag_m[i] - disp_at(lag_t_s[i] - delta);
+      sum += r * r;
+    }
+    return sum;
+  };
+  const double step = 1e-5;
+  const int steps = static_cast<int>(std::lround(search_s / step));
+  double best = std::numeric_limits<double>::infinity();
+  int best_k = 0;
+  std::vector<double> c(2 * steps + 1);
+  for (int k = -steps; k <= steps; ++k) {
+    c[k + steps] = cost(centre_s + k * step);
+    if (c[k + steps] < best) best = c[k + steps], best_k = k;
+  }
+  double refine = 0.0;
+  if (best_k > -steps && best_k < steps) {
+    const double cm = c[best_k + steps - 1], c0 = c[best_k + steps], cp = c[best_k + steps + 1];
+    const double curv = cm - 2.0 * c0 + cp;
+    if (curv > 0.0) refine = 0.5 * (cm - cp) / curv;
+  }
+  return centre_s + (best_k + refine) * step;
+}
 
 void TrialOptions::validate() const {
   const std::string w = id.empty() ? std::string("trial options") : fmt::format("trial {} options", id);

@@ -178,6 +178,20 @@ struct FreeFallFit {
 FreeFallFit fit_free_fall(const Eigen::VectorXd& t_s, const Eigen::VectorXd& z_m, double gravity_m_s2,
                           double contact_height_m, double t_ref_s);
 
+// The second synchronisation estimate's core (video_offset_trajectory_s; the
+// loop runs it on a simulated impact for its bias, diagnosis::
+// trajectory_estimate_bias_s): the face's lag behind free fall, lag_m at
+// video times lag_t_s, matched with the plate force's double integral over
+// the impactor mass (force_n on the uniform times force_t_s, integrated from
+// sample force_first, zero before it). Returns the clock shift within
+// +-search_s of centre_s that fits best (least squares on a 0.01 ms grid,
+// then a parabola through the best point and its neighbours); a lag time
+// shifted before the record reads 0, after it the integral's last value.
+// NaN with fewer than 10 lag points.
+double trajectory_shift_s(const Eigen::VectorXd& force_t_s, const Eigen::VectorXd& force_n, Eigen::Index force_first,
+                          double mass_kg, const std::vector<double>& lag_t_s, const std::vector<double>& lag_m,
+                          double centre_s, double search_s = 0.005);
+
 // Quantile of Student's t distribution (p in (0, 1), dof >= 1).
 double student_t_quantile(double p, double dof);
 
