@@ -16,14 +16,13 @@
 #include <fmt/format.h>
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <limits>
 #include <numeric>
 #include <optional>
-#include <thread>
 
 #include "core/error.h"
+#include "core/parallel.h"
 #include "diagnosis/diagnosis.h"
 #include "diagnosis/internal.h"
 
@@ -219,22 +218,15 @@ void run_trials(const std::vector<fitting::TrialData>& acc, std::vector<Trial>& 
     return std::make_pair(tries[i].options.masses_free, tries[i].options.free_effects.size());
   };
   std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return weight(a) > weight(b); });
-  std::atomic<size_t> next{0};
-  auto worker = [&] {
-    for (size_t j; (j = next++) < tries.size();) {
-      const size_t i = order[j];
-      try {
-        tries[i].fit = fitting::fit(acc, tries[i].options);
-        tries[i].errors = held_out_errors(*tries[i].fit, acc, tries[i].options);
-      } catch (const std::exception& e) {
-        tries[i].failure = e.what();
-      }
+  parallel_for(tries.size(), threads, [&](size_t j) {
+    Trial& t = tries[order[j]];
+    try {
+      t.fit = fitting::fit(acc, t.options);
+      t.errors = held_out_errors(*t.fit, acc, t.options);
+    } catch (const std::exception& e) {
+      t.failure = e.what();
     }
-  };
-  std::vector<std::thread> pool;
-  for (int w = 1; w < std::max(1, threads); ++w) pool.emplace_back(worker);
-  worker();
-  for (auto& th : pool) th.join();
+  });
 }
 
 // Per held-out trial, both channels in one number: sqrt(force^2 + travel^2)
@@ -472,28 +464,21 @@ std::optional<fitting::FitResult> better_baseline(const std::vector<fitting::Tri
   // The refits first, `threads` at a time (each on one thread); then the
   // same choice in the candidates' order as when they ran one by one.
   std::vector<std::optional<fitting::FitResult>> refits(tries.size());
-  std::atomic<size_t> next{0};
-  auto worker = [&] {
-    for (size_t i; (i = next++) < tries.size();) {
-      const Trial& t = tries[i];
-      if (!t.fit) continue;
-      MatParams p = t.fit->params;
-      // Back to the current model's own effects and masses.
-      const MatParams& c = current.params;
-      p.k1_cubic_n_m3 = c.k1_cubic_n_m3;
-      p.r1_unload_n_s_m = c.r1_unload_n_s_m;
-      p.maxwell_k_n_m = c.maxwell_k_n_m;
-      p.maxwell_tau_s = c.maxwell_tau_s;
-      p.k1_unload_ratio = c.k1_unload_ratio;
-      p.m1_kg = c.m1_kg;
-      p.m2_kg = c.m2_kg;
-      refits[i] = warm_refit(acc, current_options, p);
-    }
-  };
-  std::vector<std::thread> pool;
-  for (int w = 1; w < std::max(1, threads); ++w) pool.emplace_back(worker);
-  worker();
-  for (auto& th : pool) th.join();
+  parallel_for(tries.size(), threads, [&](size_t i) {
+    const Trial& t = tries[i];
+    if (!t.fit) return;
+    MatParams p = t.fit->params;
+    // Back to the current model's own effects and masses.
+    const MatParams& c = current.params;
+    p.k1_cubic_n_m3 = c.k1_cubic_n_m3;
+    p.r1_unload_n_s_m = c.r1_unload_n_s_m;
+    p.maxwell_k_n_m = c.maxwell_k_n_m;
+    p.maxwell_tau_s = c.maxwell_tau_s;
+    p.k1_unload_ratio = c.k1_unload_ratio;
+    p.m1_kg = c.m1_kg;
+    p.m2_kg = c.m2_kg;
+    refits[i] = warm_refit(acc, current_options, p);  // catches inside
+  });
   std::optional<fitting::FitResult> best;
   for (auto& r : refits) {
     // Beyond chance: twice the cost drop (noise units) above chi-square(1)'s 95 % point.

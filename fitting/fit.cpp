@@ -16,12 +16,12 @@
 #include <numeric>
 #include <random>
 #include <sstream>
-#include <thread>
 #include <atomic>
 #include <utility>
 
 #include "core/cpu_dispatch.h"
 #include "core/error.h"
+#include "core/parallel.h"
 #include "fitting/model5_impl.h"
 #include "fitting/models_impl.h"
 
@@ -629,10 +629,7 @@ class DualTrialCost : public TrialCostBase {
           } catch (const Error&) {
           }
         };
-        std::vector<std::thread> pool;
-        for (int c = 1; c < n_chunks; ++c) pool.emplace_back(run, c);
-        run(0);
-        for (auto& t : pool) t.join();
+        parallel_for(static_cast<size_t>(n_chunks), n_chunks, [&](size_t c) { run(static_cast<int>(c)); });
         if (evals_) ++*evals_;
         for (char k : ok)
           if (!k) return false;
@@ -1106,27 +1103,20 @@ Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, con
   // from a start inside the right basin Levenberg-Marquardt converges in a
   // handful of iterations, while the far corners cost the most simulation).
   std::vector<Optimum> runs(order.size());
-  auto in_parallel = [&](const std::vector<size_t>& which, const FitOptions& oo, bool from_runs,
-                         bool keep_radius = false) {
-    std::atomic<size_t> next{0};
+  // A run continued from an earlier stage or chunk keeps its trust region.
+  auto in_parallel = [&](const std::vector<size_t>& which, const FitOptions& oo, bool from_runs) {
     const int threads = std::max(1, std::min<int>(o.threads, static_cast<int>(which.size())));
     // The threads the runs leave free go to each run's derivatives (Model 5).
     FitOptions inner = oo;
     inner.threads = std::max(1, o.threads / threads);
-    auto worker = [&] {
-      for (size_t q; (q = next++) < which.size();) {
-        const size_t k = which[q];
-        const Eigen::VectorXd u0 = from_runs ? runs[k].u : cands[order[k]];
-        Optimum r = run_ceres(preps, space, inner, u0, evals, false, from_runs ? &runs[k].shifts : nullptr,
-                              from_runs && keep_radius ? runs[k].radius : 0.0);
-        if (!from_runs || r.cost <= runs[k].cost) runs[k] = std::move(r);
-        else runs[k].converged = true;  // no progress from here
-      }
-    };
-    std::vector<std::thread> pool;
-    for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
-    worker();
-    for (auto& t : pool) t.join();
+    parallel_for(which.size(), threads, [&](size_t q) {
+      const size_t k = which[q];
+      const Eigen::VectorXd u0 = from_runs ? runs[k].u : cands[order[k]];
+      Optimum r = run_ceres(preps, space, inner, u0, evals, false, from_runs ? &runs[k].shifts : nullptr,
+                            from_runs ? runs[k].radius : 0.0);
+      if (!from_runs || r.cost <= runs[k].cost) runs[k] = std::move(r);
+      else runs[k].converged = true;  // no progress from here
+    });
   };
   std::vector<size_t> all(order.size());
   std::iota(all.begin(), all.end(), 0);
@@ -1159,7 +1149,7 @@ Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, con
                                              : o.max_iterations - done;
     std::vector<double> before;
     for (size_t k : active) before.push_back(runs[k].cost);
-    in_parallel(active, chunk, true, true);
+    in_parallel(active, chunk, true);
     done += chunk.max_iterations;
     double best_now = std::numeric_limits<double>::infinity();
     for (const auto& r : runs) best_now = std::min(best_now, r.cost);
@@ -1694,23 +1684,15 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
   // Every trial predicted (each its own simulation: in parallel, over `threads`).
   std::vector<TrialReport> predicted(trials.size());
   {
-    std::atomic<size_t> next{0};
     std::vector<std::exception_ptr> failures(trials.size());
-    auto worker = [&] {
-      for (size_t q; (q = next++) < trials.size();) {
-        try {
-          predicted[q] = predict(trials[q], res.params, options);
-        } catch (...) {
-          failures[q] = std::current_exception();
-        }
-      }
-    };
     // (A custom simulator is not assumed thread-safe.)
-    const int threads = options.simulator ? 1 : std::min<int>(options.threads, static_cast<int>(trials.size()));
-    std::vector<std::thread> pool;
-    for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
-    worker();
-    for (auto& t : pool) t.join();
+    parallel_for(trials.size(), options.simulator ? 1 : options.threads, [&](size_t q) {
+      try {
+        predicted[q] = predict(trials[q], res.params, options);
+      } catch (...) {
+        failures[q] = std::current_exception();
+      }
+    });
     for (const auto& f : failures)
       if (f) std::rethrow_exception(f);
   }
