@@ -332,14 +332,14 @@ struct Scored {
 // that one huge error before does not hide the fall in all the others
 // (on the raw errors t = 1.7). Returns t, or NaN when not computable.
 double log_paired_t(const std::vector<double>& before_mm, const std::vector<double>& after_mm) {
-  std::vector<double> d;
+  std::vector<double> lb, la;
   for (std::size_t i = 0; i < before_mm.size(); ++i)
-    if (before_mm[i] > 0.0 && after_mm[i] > 0.0) d.push_back(std::log(before_mm[i] / after_mm[i]));
-  if (d.size() < 3) return kNaN;
-  const Eigen::VectorXd v = detail::to_vector(d);
-  const double sd = detail::sample_sd(v);
-  if (!(sd > 0.0)) return v.mean() > 0.0 ? std::numeric_limits<double>::infinity() : 0.0;
-  return v.mean() / (sd / std::sqrt(static_cast<double>(v.size())));
+    if (before_mm[i] > 0.0 && after_mm[i] > 0.0) {
+      lb.push_back(std::log(before_mm[i]));
+      la.push_back(std::log(after_mm[i]));
+    }
+  if (lb.size() < 3) return kNaN;
+  return paired_improvement(detail::to_vector(lb), detail::to_vector(la), 0.0, 0.0, 0.0).t;
 }
 
 // The round's hypotheses. Lens distortion with as few terms as the markers
