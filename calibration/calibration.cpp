@@ -481,16 +481,15 @@ DltFit fit_dlt(const std::string& camera_name, const std::vector<Correspondence>
       refine(label, lab_n, image, image_norm, options, q, d);
       fit.camera = to_camera(q);
     } else {
-      // The distortion about the DLT's own centre is a hard landscape: the
-      // linear DLT's principal point, bent by the distortion, can sit 200 px
-      // from the optical axis, and from there k1 stays near 0 in a poor
-      // optimum (1.7 px^2 of cost against 0.11 from the right basin, on 7
-      // markers). So: the distortion about the linear DLT's centre held
-      // fixed (the former model, a well-posed start), then the moving
-      // centre from that optimum and from the linear DLT with k1 seeded
-      // across the range of real lenses; the lowest cost is kept (every
-      // start fits the same parameters).
-      // From the given start (its terms that these options hold, zeroed).
+      // The fitted camera from normalised coefficients, distortion, centre, focal.
+      auto adopt = [&](const double* qq, const double* dd, const Eigen::Vector2d& centre, double focal) {
+        fit.camera = to_camera(qq);
+        fit.camera.distortion.assign(dd, dd + 5);
+        fit.camera.principal_point_px = centre;
+        fit.camera.focal_px = focal;
+      };
+      // From the given start (its terms that these options hold, zeroed):
+      // one refinement.
       bool warm = false;
       if (options.start && options.start->distortion.size() == 5) {
         // Q = U P T^-1, scaled to Q(2,3) = 1 (the inverse of to_camera).
@@ -498,30 +497,36 @@ DltFit fit_dlt(const std::string& camera_name, const std::vector<Correspondence>
         U.topLeftCorner<2, 2>() *= image_norm.scale;
         U.topRightCorner<2, 1>() = -image_norm.scale * image_norm.centroid;
         const Matrix34d Q = U * options.start->image_from_lab() * T.inverse();
-        double qs[11], ds[5];
-        for (int k = 0; k < 11; ++k) qs[k] = std::abs(Q(2, 3)) > 0.0 ? Q(k / 4, k % 4) / Q(2, 3) : 0.0;
-        for (int k = 0; k < 5; ++k) ds[k] = options.start->distortion[static_cast<std::size_t>(k)];
-        if (options.radial_terms < 1) ds[0] = 0.0;
-        if (options.radial_terms < 2) ds[1] = 0.0;
-        if (!options.tangential) ds[2] = ds[3] = 0.0;
-        if (options.radial_terms < 3) ds[4] = 0.0;
-        try {
-          if (std::abs(Q(2, 3)) > 0.0) {
+        if (std::abs(Q(2, 3)) > 0.0) {
+          double qs[11], ds[5];
+          for (int k = 0; k < 11; ++k) qs[k] = Q(k / 4, k % 4) / Q(2, 3);
+          for (int k = 0; k < 5; ++k) ds[k] = options.start->distortion[static_cast<std::size_t>(k)];
+          if (options.radial_terms < 1) ds[0] = 0.0;
+          if (options.radial_terms < 2) ds[1] = 0.0;
+          if (!options.tangential) ds[2] = ds[3] = 0.0;
+          if (options.radial_terms < 3) ds[4] = 0.0;
+          try {
             refine(label, lab_n, image, image_norm, options, qs, ds);
             Eigen::Vector2d centre;
             double focal = 0.0;
             if (principal_point_and_focal(to_camera(qs).dlt, &centre, &focal)) {
-              fit.camera = to_camera(qs);
-              fit.camera.distortion.assign(ds, ds + 5);
-              fit.camera.principal_point_px = centre;
-              fit.camera.focal_px = focal;
+              adopt(qs, ds, centre, focal);
               warm = true;
             }
+          } catch (const Error&) {
           }
-        } catch (const Error&) {
         }
       }
       if (!warm) {
+        // The distortion about the DLT's own centre is a hard landscape: the
+        // linear DLT's principal point, bent by the distortion, can sit 200 px
+        // from the optical axis, and from there k1 stays near 0 in a poor
+        // optimum (1.7 px^2 of cost against 0.11 from the right basin, on 7
+        // markers). So: the distortion about the linear DLT's centre held
+        // fixed (the former model, a well-posed start), then the moving
+        // centre from that optimum and from the linear DLT with k1 seeded
+        // across the range of real lenses; the lowest cost is kept (every
+        // start fits the same parameters).
         const Eigen::Vector2d centre0 = fit.camera.principal_point_px;
         const double focal0 = fit.camera.focal_px;
         double q_linear[11];
@@ -557,10 +562,7 @@ DltFit fit_dlt(const std::string& camera_name, const std::vector<Correspondence>
             const double d_seed[5] = {k1, 0.0, 0.0, 0.0, 0.0};
             from(q_linear, d_seed);
           }
-        fit.camera = to_camera(q);
-        fit.camera.distortion.assign(d, d + 5);
-        fit.camera.principal_point_px = best_centre;
-        fit.camera.focal_px = best_focal;
+        adopt(q, d, best_centre, best_focal);
       }
     }
   }
