@@ -311,6 +311,96 @@ TEST(Trial, MissingMarkersAroundContactAreRejectedByName) {
   EXPECT_NEAR(r.peak_force_n, w.peak_force_n, 0.005 * w.peak_force_n);
 }
 
+namespace {
+// The instant of the impactor's lowest point, after contact.
+double bottom_time_s(const World& w) {
+  std::size_t k_max = 0;
+  for (std::size_t k = 0; k < w.pen_m.size(); ++k) {
+    if (w.pen_m[k] > w.pen_m[k_max]) k_max = k;
+  }
+  return static_cast<double>(k_max) * w.h_s;
+}
+}  // namespace
+
+// Digitised tracks as labs have them: several 4-5-frame gaps in the contact
+// window, in either base marker (about 15 % of its frames), and two gaps in
+// a row (8 frames, as when a gap in one camera abuts one in the other). The
+// trial is kept and measured as if whole; the old 90 % coverage rule threw
+// such trials away (validation v2's fastest trial).
+TEST(Trial, LabDigitisingGapsKeepTheTrial) {
+  const World w = make_world(WorldOptions{});
+  const double t_bottom_s = bottom_time_s(w);
+  dropfit::reconstruction::Trajectories markers = w.markers;
+  auto drop = [&](int marker, double from_s, double to_s) {
+    int n = 0;
+    for (int i = 0; i < w.o.frames; ++i) {
+      const double tau = w.tau_of_frame(i);
+      if (tau >= from_s && tau < to_s) {
+        markers.lab_m.block(i, 3 * marker, 1, 3).setConstant(std::nan(""));
+        ++n;
+      }
+    }
+    return n;
+  };
+  const int back = drop(1, -0.004, 0.001) + drop(1, 0.008, 0.013) + drop(1, t_bottom_s + 0.008, t_bottom_s + 0.016);
+  const int front = drop(0, t_bottom_s - 0.012, t_bottom_s - 0.008);
+  ASSERT_EQ(back, 18);
+  ASSERT_EQ(front, 4);
+  const tr::TrialResult r = tr::analyse(fp::process(w.raw, force_options(w)), markers, trial_options(w));
+  EXPECT_TRUE(r.accepted) << r.reject_reason;
+  EXPECT_NEAR(r.max_deformation_m, w.max_penetration_m, 1e-3);
+  EXPECT_NEAR(r.impact_velocity_m_s, w.o.impact_speed_m_s, 0.02);
+  // The same gaps under the old rule (90 % of frames, no gap over 5 ms).
+  tr::TrialOptions strict = trial_options(w);
+  strict.min_marker_coverage = 0.90;
+  strict.max_marker_gap_s = 0.005;
+  const tr::TrialResult old = tr::analyse(fp::process(w.raw, force_options(w)), markers, strict);
+  EXPECT_FALSE(old.accepted);
+  EXPECT_TRUE(contains(old.reject_reason, "imp_base_back (7")) << old.reject_reason;
+}
+
+// A 5-frame gap ending at the bottom: the parabola bridges it (its window
+// doubles) and the trial is kept with the bottom measured.
+TEST(Trial, GapBesideTheLowestPointIsBridged) {
+  const World w = make_world(WorldOptions{});
+  const double t_bottom_s = bottom_time_s(w);
+  dropfit::reconstruction::Trajectories markers = w.markers;
+  int n = 0;
+  for (int i = 0; i < w.o.frames; ++i) {
+    const double tau = w.tau_of_frame(i);
+    if (tau >= t_bottom_s - 0.0055 && tau < t_bottom_s - 0.0005) {
+      markers.lab_m.block(i, 0, 1, 3).setConstant(std::nan(""));  // imp_base_front
+      ++n;
+    }
+  }
+  ASSERT_EQ(n, 5);
+  const tr::TrialResult r = tr::analyse(fp::process(w.raw, force_options(w)), markers, trial_options(w));
+  EXPECT_TRUE(r.accepted) << r.reject_reason;
+  EXPECT_NEAR(r.max_deformation_m, w.max_penetration_m, 1e-3);
+  EXPECT_NEAR(r.max_deformation_time_s + w.tau_trigger_s, t_bottom_s, 1.5e-3);
+}
+
+// The impactor's lowest point inside a gap cannot be measured: the trial is
+// rejected with that reason, not given the edge of the gap as its bottom.
+TEST(Trial, LowestPointInAGapIsRejected) {
+  const World w = make_world(WorldOptions{});
+  const double t_bottom_s = bottom_time_s(w);
+  dropfit::reconstruction::Trajectories markers = w.markers;
+  int n = 0;
+  for (int i = 0; i < w.o.frames; ++i) {
+    const double tau = w.tau_of_frame(i);
+    if (std::abs(tau - t_bottom_s) < 0.0045) {
+      markers.lab_m.block(i, 0, 1, 3).setConstant(std::nan(""));  // imp_base_front
+      ++n;
+    }
+  }
+  ASSERT_EQ(n, 9);
+  const tr::TrialResult r = tr::analyse(fp::process(w.raw, force_options(w)), markers, trial_options(w));
+  EXPECT_FALSE(r.accepted);
+  EXPECT_TRUE(contains(r.reject_reason, "lowest point")) << r.reject_reason;
+  EXPECT_FALSE(contains(r.reject_reason, "markers missing")) << r.reject_reason;
+}
+
 // A short gap is tolerated, and the series shows it as NaN, never filled.
 TEST(Trial, ShortGapStaysAGapInTheSeries) {
   const World w = make_world(WorldOptions{});

@@ -8,6 +8,9 @@
 //   - every trial's maximum impactor travel within 1 mm of the truth, both as
 //     measured and as predicted;
 //   - every trial's peak force predicted within 2 % of the truth;
+//   - every trial accepted (v2's fastest trial has 8 of its 72 contact
+//     frames missing for one base marker, which a 90 % coverage rule threw
+//     away);
 //   - the video-force clock offset of every trial within 0.15 ms of the
 //     truth, from the fitted contact instant (fit.json's contact_shift_s
 //     applied to the trial's own estimate).
@@ -73,6 +76,9 @@ void expect_recovers(const Outcome& o, bool cubic) {
     const std::string id = t["id"];
     SCOPED_TRACE(id);
     const json& tr = o.trials.at(id);
+    // Every trial of these sessions is a good drop with the digitising gaps
+    // labs have (1-5 frames, in one camera or both): none is thrown away.
+    EXPECT_TRUE(tr["accepted"].get<bool>()) << tr["reject_reason"];
     json rep;
     for (const auto& r : o.fit["trials"])
       if (r["id"] == id) rep = r;

@@ -347,17 +347,31 @@ std::string coverage_reason(const reconstruction::Trajectories& markers, const T
 }
 
 // Maximum deformation (the lowest face height in frames [first, last],
-// refined by a parabola over deformation_fit_half_window_s) into res.
-void max_deformation(const Eigen::VectorXd& h, int first, int last, const TrialOptions& o, const VideoClock& clock,
-                     double offset, TrialResult& res) {
+// refined by a parabola over deformation_fit_half_window_s) into res. The
+// parabola needs two frames seen on each side of the lowest one seen; when a
+// gap leaves fewer within the half window, the window doubles once (the
+// bottom of a gap-bridging parabola). Returns a reason when even that leaves
+// a side short (the bottom lies in a gap and is not measured), or when the
+// face is never seen.
+std::string max_deformation(const Eigen::VectorXd& h, int first, int last, const TrialOptions& o,
+                            const VideoClock& clock, double offset, TrialResult& res) {
   const int nf = static_cast<int>(h.size());
   int imin = -1;
   for (int i = std::max(0, first); i <= std::min(last, nf - 1); ++i) {
     if (std::isfinite(h[i]) && (imin < 0 || h[i] < h[imin])) imin = i;
   }
-  if (imin < 0) return;
+  if (imin < 0) return "video: the impactor face is never seen during the contact";
+  const int hw0 = std::max(1, static_cast<int>(std::lround(o.deformation_fit_half_window_s * clock.fps)));
+  auto seen_each_side = [&](int hw) {
+    int before = 0, after = 0;
+    for (int i = std::max(0, imin - hw); i <= std::min(nf - 1, imin + hw); ++i) {
+      if (!std::isfinite(h[i]) || i == imin) continue;
+      if (i < imin) ++before; else ++after;
+    }
+    return std::min(before, after);
+  };
+  const int hw = seen_each_side(hw0) >= 2 ? hw0 : 2 * hw0;
   double hmin = h[imin], umin = 0.0;
-  const int hw = std::max(1, static_cast<int>(std::lround(o.deformation_fit_half_window_s * clock.fps)));
   Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
   Eigen::Vector3d atb = Eigen::Vector3d::Zero();
   int count = 0;
@@ -381,6 +395,12 @@ void max_deformation(const Eigen::VectorXd& h, int first, int last, const TrialO
   }
   res.max_deformation_m = o.mat_top_z_m - hmin;
   res.max_deformation_time_s = clock.time(imin + umin) - offset;
+  if (seen_each_side(hw) < 2) {
+    return fmt::format("video: the lowest point of the impactor face falls in a marker gap (fewer than two frames "
+                       "seen on one side of the lowest one seen within {:.0f} ms; max deformation not measured)",
+                       1e3 * hw / clock.fps);
+  }
+  return {};
 }
 
 // The largest tilt of the base over frames [first, last], each frame's up
@@ -578,7 +598,7 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
     const int first = static_cast<int>(std::ceil(clock.frame(start_v)));
     const int last = static_cast<int>(std::floor(clock.frame(end_v)));
     if (std::string r = coverage_reason(markers, o, clock, start_v, last); !r.empty()) reasons.push_back(r);
-    max_deformation(h, first, last, o, clock, offset, res);
+    if (std::string r = max_deformation(h, first, last, o, clock, offset, res); !r.empty()) reasons.push_back(r);
     res.tilt_deg = worst_tilt_deg(markers, o, first, last);
     if (std::isfinite(res.tilt_deg) && res.tilt_deg > o.max_tilt_deg) {
       reasons.push_back(fmt::format("tilt {:.1f} deg exceeds the {:.1f} deg limit", res.tilt_deg, o.max_tilt_deg));

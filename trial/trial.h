@@ -61,7 +61,10 @@
 //   surface; the manifest's height is kept (TrialResult::contact_height_m).
 // - Max deformation: the contact height minus the lowest face height during contact,
 //   from a quadratic fitted to the frames within
-//   deformation_fit_half_window_s of the lowest one.
+//   deformation_fit_half_window_s of the lowest one; it needs two frames
+//   seen on each side of the lowest one within that window, or within twice
+//   it when a gap is in the way (otherwise the bottom lies in a gap and the
+//   trial is rejected).
 // - Tilt: per frame, with two base markers the base line's angle from
 //   horizontal (the tilt about the line itself cannot be seen); with three or
 //   more the angle of the base plane's normal (least squares plane, SVD) from
@@ -71,7 +74,9 @@
 //   the contact.
 // - Marker coverage: each base marker must be present in min_marker_coverage
 //   of the frames from coverage_lead_s before contact to the end of contact,
-//   with no gap longer than max_marker_gap_s. Surface markers are optional
+//   with no gap longer than max_marker_gap_s. Digitised tracks have short
+//   gaps (1-5 frames, in one camera or both, and a gap in one camera can
+//   abut one in the other); such a trial is kept and its gaps stay NaN. Surface markers are optional
 //   (the impactor may hide them); their mean is NaN where any is missing.
 // - Series: every force sample from series_lead_s before contact to the end
 //   of contact; video values linearly interpolated between two present
@@ -83,9 +88,9 @@
 // Rejections (accepted = false, reason given, everything measured still
 // reported): a bad force record (forceplate's Error text forwarded), the
 // face never seen reaching the mat, too few free-fall frames, base markers
-// missing around contact (named), tilt beyond max_tilt_deg, clocks
-// disagreeing by more than max_video_offset_s, and the plausibility gates
-// below. Bad options (an index out of range, no base markers) throw
+// missing around contact (named), the lowest point in a gap, tilt beyond
+// max_tilt_deg, clocks disagreeing by more than max_video_offset_s, and the
+// plausibility gates below. Bad options (an index out of range, no base markers) throw
 // dropfit::Error.
 //
 // Plausibility gates (physics, not tuning; each names what it saw):
@@ -141,8 +146,8 @@ struct TrialOptions {
   double freefall_clearance_m = 0.002;
   int min_freefall_frames = 10;
   double coverage_lead_s = 0.010;
-  double min_marker_coverage = 0.90;
-  double max_marker_gap_s = 0.005;
+  double min_marker_coverage = 0.75;       // digitising leaves 1-5-frame gaps, some in both cameras
+  double max_marker_gap_s = 0.010;        // ... and gaps in the two cameras can abut
   double max_video_offset_s = 0.050;
   double deformation_fit_half_window_s = 0.005;
   int tilt_smoothing_frames = 5;
