@@ -390,11 +390,13 @@ int refit_pairs(const std::vector<fitting::TrialData>& acc, const std::vector<Ef
 }
 
 // Structure left beyond the noise after the library: unexplained, with its
-// frequency.
+// frequency (the period the held-out trials share: one contact is too
+// short to place a period within its 16-18 Hz bins).
 void add_remaining(MatDiagnosis& out, const HeldOutErrors& before, const MatStageOptions& options) {
   const double f_end = before.mean_force_sd(), k_end = before.mean_impactor_sd();
   if (f_end > options.unexplained_noise_sd || k_end > options.unexplained_noise_sd) {
-    const PeriodicPeak peak = periodogram_peak(before.force_residual_n, before.dt_s, options.decision.alpha, 5.0);
+    const PeriodicPeak peak =
+        common_periodic_peak(before.force_residual_n, before.dt_s, options.decision.alpha, 5.0);
     Remaining r;
     r.stage = "mat";
     r.name = peak.significant ? "periodic_oscillation" : "unexplained_structure";

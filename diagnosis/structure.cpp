@@ -6,6 +6,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <boost/math/distributions/chi_squared.hpp>
+#include <boost/math/distributions/fisher_f.hpp>
 #include <bit>
 #include <cassert>
 #include <cmath>
@@ -448,6 +449,106 @@ PeriodicPeak periodogram_peak(const std::vector<Eigen::VectorXd>& segments, doub
   best.share = fit.r2;
   best.g = it->g;
   best.p_value = std::min(1.0, it->p * tested);
+  best.significant = best.p_value < alpha;
+  return best;
+}
+
+PeriodicPeak common_periodic_peak(const std::vector<Eigen::VectorXd>& segments, double dt_s, double alpha,
+                                  double min_frequency_hz) {
+  if (!(dt_s > 0.0)) throw Error("common_periodic_peak: the sample spacing must be positive");
+  struct Segment {
+    Eigen::VectorXd e;
+    double mean_ordinate;
+  };
+  std::vector<Segment> used;
+  Eigen::FFT<double> fft;
+  double finest_df = std::numeric_limits<double>::infinity(), total = 0.0;
+  int longest_m = 0, shortest_m = std::numeric_limits<int>::max();
+  for (const auto& seg : segments) {
+    const auto n = static_cast<int>(seg.size());
+    if (n < 8 || !seg.allFinite()) continue;
+    const Eigen::VectorXd e = detrend(seg);
+    std::vector<double> v(e.data(), e.data() + n);
+    std::vector<std::complex<double>> spectrum;
+    fft.fwd(spectrum, v);
+    const double df = 1.0 / (n * dt_s);
+    double sum = 0.0;
+    int m_used = 0;
+    for (int k = 1; k <= (n - 1) / 2; ++k) {
+      if (k * df < min_frequency_hz) continue;
+      sum += std::norm(spectrum[static_cast<std::size_t>(k)]);
+      ++m_used;
+    }
+    if (m_used < 2 || sum <= 0.0) continue;
+    used.push_back({e, sum / m_used});
+    finest_df = std::min(finest_df, df);
+    longest_m = std::max(longest_m, m_used);
+    shortest_m = std::min(shortest_m, m_used);
+    total += m_used;  // each segment's normalised ordinates sum to m_used
+  }
+  PeriodicPeak best;
+  if (used.empty()) return best;
+  auto summed = [&](double f) {
+    double s = 0.0;
+    for (const auto& u : used) s += periodogram_at(u.e, dt_s, f) / u.mean_ordinate;
+    return s;
+  };
+  const double nyquist = 0.5 / dt_s, step = 0.25 * finest_df;
+  double f_top = std::max(min_frequency_hz, step), s_top = -1.0;
+  for (double f = std::max(min_frequency_hz, step); f < nyquist; f += step) {
+    const double s = summed(f);
+    if (s > s_top) {
+      s_top = s;
+      f_top = f;
+    }
+  }
+  // Golden section between the grid neighbours.
+  double lo = std::max(f_top - step, 1e-9), hi = std::min(f_top + step, nyquist);
+  const double phi = 0.5 * (std::sqrt(5.0) - 1.0);
+  double x1 = hi - phi * (hi - lo), x2 = lo + phi * (hi - lo);
+  double s1 = summed(x1), s2 = summed(x2);
+  for (int iter = 0; iter < 30; ++iter) {
+    if (s1 < s2) {
+      lo = x1;
+      x1 = x2;
+      s1 = s2;
+      x2 = lo + phi * (hi - lo);
+      s2 = summed(x2);
+    } else {
+      hi = x2;
+      x2 = x1;
+      s2 = s1;
+      x1 = hi - phi * (hi - lo);
+      s1 = summed(x1);
+    }
+  }
+  double f = 0.5 * (lo + hi), s_best = summed(f);
+  if (s_top > s_best) {
+    f = f_top;
+    s_best = s_top;
+  }
+  double rss = 0.0, tss = 0.0, amp2 = 0.0;
+  for (const auto& u : used) {
+    Eigen::MatrixXd cs(u.e.size(), 2);
+    for (Eigen::Index t = 0; t < u.e.size(); ++t) {
+      const double w = 2.0 * std::numbers::pi * f * dt_s * static_cast<double>(t);
+      cs(t, 0) = std::cos(w);
+      cs(t, 1) = std::sin(w);
+    }
+    const LinearFit fit = linear_fit(cs, u.e);
+    tss += u.e.squaredNorm();  // detrended: about zero mean
+    rss += fit.rss;
+    amp2 += fit.coefficients.squaredNorm();
+  }
+  const auto s_count = static_cast<double>(used.size());
+  best.frequency_hz = f;
+  best.amplitude = std::sqrt(amp2 / s_count);
+  best.share = tss > 0.0 ? 1.0 - rss / tss : 0.0;
+  best.g = s_best / total;
+  // Each ordinate over its segment's mean of m ordinates is about F(2, 2m);
+  // their mean over S segments is taken as F(2S, 2m) with the shortest m.
+  const boost::math::fisher_f_distribution<double> null_f(2.0 * s_count, 2.0 * shortest_m);
+  best.p_value = std::min(1.0, 2.0 * longest_m * boost::math::cdf(boost::math::complement(null_f, s_best / s_count)));
   best.significant = best.p_value < alpha;
   return best;
 }

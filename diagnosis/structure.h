@@ -170,6 +170,23 @@ PeriodicPeak periodogram_peak(const std::vector<Eigen::VectorXd>& segments, doub
 PeriodicPeak periodogram_peak(const Eigen::VectorXd& residual, double dt_s, double alpha = 0.01,
                               double min_frequency_hz = 0.0);
 
+// A period common to several segments (the held-out trials' residuals, each
+// short): each segment's detrended periodogram over its mean Fourier
+// ordinate above min_frequency_hz (so a loud segment does not outvote the
+// others), summed over the segments on a grid of a quarter of the finest
+// Fourier spacing; the largest sum refined by golden section. A period every
+// segment shares adds up while each segment's own misfit does not, and the
+// sum resolves a frequency better than one short segment's bins. Under white
+// noise an ordinate over its segment's mean of m ordinates is about
+// F(2, 2m), and the mean over S segments is taken as F(2S, 2m) with the
+// shortest m: p_value is that tail times twice the longest segment's Fourier
+// count (the grid is oversampled), g the largest sum over the sum of all the
+// normalised ordinates. amplitude and share: a sinusoid at that
+// frequency fitted to each segment with its own phase (amplitude their RMS,
+// share the pooled explained variance).
+PeriodicPeak common_periodic_peak(const std::vector<Eigen::VectorXd>& segments, double dt_s, double alpha = 0.01,
+                                  double min_frequency_hz = 0.0);
+
 // ---- Model comparison ----------------------------------------------------
 
 struct InformationCriteria {

@@ -4,7 +4,11 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <numbers>
 
 #include "capture/io.h"
 #include "cli/pipeline.h"
@@ -167,6 +171,47 @@ TEST(ValidationUpstream, ImpulseBalanceIsOneOnCleanSessions) {
     }
     EXPECT_GE(n, 3) << name;
   }
+}
+
+}  // namespace
+}  // namespace dropfit::diagnosis
+
+namespace dropfit::diagnosis {
+namespace {
+
+// The linear control mat read by a plate that rings after each impact: an
+// effect outside the library (the independent world's generator has a
+// `resonance` of this shape, off in the six sessions). 100 N at 150 Hz,
+// rising over 3 ms and decaying over 30 ms from the true contact, added to
+// Fz1-Fz4 in memory. Nothing may be named for it, and the structure is left
+// unexplained with its frequency within 5 % (each held-out contact holds
+// only 55-65 samples, so the period is found in their sum; the strongest bin
+// of one trial was 12 % off).
+TEST(ValidationLoop, APlateRingingIsLeftUnexplainedWithItsFrequency) {
+  if (!have("v2-linear-control")) GTEST_SKIP() << "../shared/validation absent";
+  std::ifstream in(validation("v2-linear-control") + "/../truth.json");
+  const nlohmann::json truth = nlohmann::json::parse(in);
+  Session s = capture::read_session(validation("v2-linear-control"));
+  const double f_hz = 150.0, amp_n = 100.0, rise_s = 0.003, decay_s = 0.030;
+  for (TrialRecording& t : s.trials) {
+    double tc = std::numeric_limits<double>::quiet_NaN();
+    for (const auto& tt : truth["trials"])
+      if (tt["id"] == t.spec.id) tc = tt["contact_time_s"].get<double>();
+    ASSERT_TRUE(std::isfinite(tc)) << t.spec.id;
+    for (Eigen::Index k = 0; k < t.force.t_s.size(); ++k) {
+      const double u = t.force.t_s(k) - tc;
+      if (u <= 0.0) continue;
+      const double ring = amp_n * (1.0 - std::exp(-u / rise_s)) * std::exp(-u / decay_s) *
+                          std::sin(2.0 * std::numbers::pi * f_hz * u);
+      for (int c = 4; c < 8; ++c) t.force.data(k, c) += ring / 4.0;  // Fz1..Fz4
+    }
+  }
+  const DiagnosisResult r = diagnose(pipeline::session_state(s), DiagnosisOptions{});
+  EXPECT_TRUE(r.effects.empty()) << r.report();
+  EXPECT_TRUE(r.unexplained) << r.report();
+  ASSERT_EQ(r.remaining.size(), 1u) << r.report();
+  EXPECT_EQ(r.remaining[0].name, "periodic_oscillation") << r.report();
+  EXPECT_NEAR(r.remaining[0].frequency_hz, f_hz, 0.05 * f_hz) << r.report();
 }
 
 }  // namespace
