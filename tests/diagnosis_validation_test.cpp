@@ -179,6 +179,31 @@ TEST(ValidationUpstream, ImpulseBalanceIsOneOnCleanSessions) {
 namespace dropfit::diagnosis {
 namespace {
 
+// The whole loop (every stage, the mat's included) on the pipeline's state:
+// each session names exactly what its README's table says a correct
+// diagnosis names, and leaves nothing unexplained (the linear control:
+// nothing named, nothing unexplained).
+TEST(ValidationLoop, EachSessionIsNamedExactly) {
+  const std::vector<std::pair<std::string, std::vector<std::string>>> cases{
+      {"v1-realistic", {"stiffness_nonlinearity"}},
+      {"v2-linear-control", {}},
+      {"v3-hysteresis", {"hysteresis"}},
+      {"v4-rate", {"rate_dependence"}},
+      {"v5-outlier-lens-offset", {"lens_distortion", "outlier_marker", "stiffness_nonlinearity", "time_offset"}},
+      {"v6-formats-drift-scale", {"baseline_drift", "force_scale", "stiffness_nonlinearity"}}};
+  for (const auto& [name, expected] : cases) {
+    if (!have(name)) GTEST_SKIP() << "../shared/validation absent";
+    const DiagnosisResult r = diagnose(pipeline::session_state(capture::read_session(validation(name))),
+                                       DiagnosisOptions{});
+    std::vector<std::string> names;
+    for (const auto& e : r.effects) names.push_back(e.name);
+    std::sort(names.begin(), names.end());
+    EXPECT_EQ(names, expected) << name << "\n" << r.report();
+    EXPECT_FALSE(r.unexplained) << name << "\n" << r.report();
+    EXPECT_TRUE(r.not_assessed.empty()) << name << "\n" << r.report();
+  }
+}
+
 // The linear control mat read by a plate that rings after each impact: an
 // effect outside the library (the independent world's generator has a
 // `resonance` of this shape, off in the six sessions). 100 N at 150 Hz,
