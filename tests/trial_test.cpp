@@ -489,6 +489,27 @@ TEST(Trial, ASpikeOfAFifthOfThePeakIsRejected) {
   EXPECT_TRUE(clean.accepted) << clean.reject_reason;
 }
 
+// The same spike 15 ms into the free flight after the contact: it would add
+// its impulse to the plate's balance against the impactor's momentum (a
+// false force scale of about 1 % on the independent world's linear control
+// with 3 kN), so it rejects too, saying where it is.
+TEST(Trial, ASpikeInTheFreeFlightAfterTheContactIsRejected) {
+  const World w = make_world(WorldOptions{});
+  Eigen::MatrixXd ch = w.raw.channels_n;
+  const Eigen::VectorXd fz = ch.middleCols(4, 4).rowwise().sum();
+  Eigen::Index k_end = 0;
+  for (Eigen::Index k = 0; k < fz.size(); ++k)
+    if (fz(k) > 0.05 * fz.maxCoeff()) k_end = k;
+  const Eigen::Index k = k_end + 15;
+  ASSERT_LT(k, fz.size() - 1);
+  for (int c = 4; c < 8; ++c) ch(k, c) += 0.2 * fz.maxCoeff() / 4.0;
+  const fp::Resultants raw = fp::from_eight_channels(w.raw.t_s, ch, fp::PlateGeometry{});
+  const tr::TrialResult r = tr::analyse(raw, force_options(w), w.markers, trial_options(w));
+  EXPECT_FALSE(r.accepted);
+  EXPECT_TRUE(contains(r.reject_reason, fmt::format("single-sample spike at sample {}", k))) << r.reject_reason;
+  EXPECT_TRUE(contains(r.reject_reason, "after the contact")) << r.reject_reason;
+}
+
 // A wrong trigger_frame: the clocks disagree by far more than a camera can
 // drift; rejected, with the offset still measured.
 TEST(Trial, ClocksFarApartAreRejected) {

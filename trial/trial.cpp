@@ -135,8 +135,11 @@ std::optional<Fit2> line_fit(const std::vector<double>& tau, const std::vector<d
   return fit;
 }
 
-// A single-sample force spike during contact (trial.h), as a reason; empty
-// when none. Samples [first, last] are the contact.
+// A single-sample force spike (trial.h), as a reason; empty when none.
+// Samples [first, last] are the contact: they must be finite, and their
+// median-filtered peak scales the gate. Spikes are sought over the whole
+// record: one in the free flight after the contact biases the plate's
+// impulse balance as much as one inside it.
 std::string force_spike(const Eigen::VectorXd& t, const Eigen::VectorXd& fz, Eigen::Index first, Eigen::Index last,
                         double max_fraction) {
   const Eigen::Index n = fz.size();
@@ -159,17 +162,18 @@ std::string force_spike(const Eigen::VectorXd& t, const Eigen::VectorXd& fz, Eig
   const double limit = max_fraction * peak;
   Eigen::Index worst = -1;
   double worst_dev = 0.0;
-  for (Eigen::Index k = std::max<Eigen::Index>(first, 1); k <= std::min(last, n - 2); ++k) {
+  for (Eigen::Index k = 1; k <= n - 2; ++k) {
     const double a = fz[k] - fz[k - 1], b = fz[k] - fz[k + 1];
-    if ((a > 0.0) != (b > 0.0)) continue;  // not standing away from both
+    if (!std::isfinite(a) || !std::isfinite(b) || (a > 0.0) != (b > 0.0)) continue;  // not standing away from both
     const double dev = std::min(std::abs(a), std::abs(b));
     if (dev > limit && dev > worst_dev) worst = k, worst_dev = dev;
   }
   if (worst < 0) return {};
   return fmt::format(
-      "force: single-sample spike at sample {} (t = {:.1f} ms): {:.4g} N against {:.4g} N and {:.4g} N beside it "
+      "force: single-sample spike at sample {} (t = {:.1f} ms{}): {:.4g} N against {:.4g} N and {:.4g} N beside it "
       "(a mat's force cannot jump by more than {:.0f} % of its {:.0f} N peak within one sample)",
-      worst, 1e3 * t[worst], fz[worst], fz[worst - 1], fz[worst + 1], 100.0 * max_fraction, peak);
+      worst, 1e3 * t[worst], worst < first ? ", before the contact" : (worst > last ? ", after the contact" : ""),
+      fz[worst], fz[worst - 1], fz[worst + 1], 100.0 * max_fraction, peak);
 }
 
 // The video clock: frame numbers against seconds, 0 at the trigger frame.

@@ -94,9 +94,10 @@
 // dropfit::Error.
 //
 // Plausibility gates (physics, not tuning; each names what it saw):
-// - Force spike: a non-finite Fz sample during contact, or one sample that
-//   stands away from both neighbours (same sign) by more than
-//   max_spike_fraction of the contact's median-filtered peak. Through a
+// - Force spike: a non-finite Fz sample during contact, or one sample
+//   anywhere in the record (one in the free flight biases the impulse
+//   balance too) that stands away from both neighbours (same sign) by more
+//   than max_spike_fraction of the contact's median-filtered peak. Through a
 //   compliant mat the plate force rises over milliseconds; a smooth curve
 //   sampled at 1 kHz or faster cannot leave and return to its neighbours by
 //   15 % of its peak within one sample (over 960 trials of the validation
