@@ -117,6 +117,30 @@ double periodogram_at(const Eigen::VectorXd& e, double dt_s, double f_hz) {
   return std::norm(sum);
 }
 
+// The maximum of f over [lo, hi] by golden-section search (f unimodal there).
+template <class F>
+double golden_section_max(F f, double lo, double hi, int iterations) {
+  const double phi = 0.5 * (std::sqrt(5.0) - 1.0);
+  double x1 = hi - phi * (hi - lo), x2 = lo + phi * (hi - lo);
+  double f1 = f(x1), f2 = f(x2);
+  for (int iter = 0; iter < iterations; ++iter) {
+    if (f1 < f2) {
+      lo = x1;
+      x1 = x2;
+      f1 = f2;
+      x2 = lo + phi * (hi - lo);
+      f2 = f(x2);
+    } else {
+      hi = x2;
+      x2 = x1;
+      f2 = f1;
+      x1 = hi - phi * (hi - lo);
+      f1 = f(x1);
+    }
+  }
+  return 0.5 * (lo + hi);
+}
+
 // Removes the least-squares line (a trend is not a period).
 Eigen::VectorXd detrend(const Eigen::VectorXd& y) {
   const Eigen::Index n = y.size();
@@ -415,27 +439,9 @@ PeriodicPeak periodogram_peak(const std::vector<Eigen::VectorXd>& segments, doub
   const Eigen::VectorXd e = detrend(*it->seg);
   const auto n = static_cast<double>(e.size());
   const double df = 1.0 / (n * dt_s);
-  // Golden-section search for the continuous maximum between the neighbours.
-  double lo = std::max((it->k - 1) * df, 1e-9 * df), hi = std::min((it->k + 1) * df, 0.5 / dt_s);
-  const double phi = 0.5 * (std::sqrt(5.0) - 1.0);
-  double x1 = hi - phi * (hi - lo), x2 = lo + phi * (hi - lo);
-  double f1 = periodogram_at(e, dt_s, x1), f2 = periodogram_at(e, dt_s, x2);
-  for (int iter = 0; iter < 40; ++iter) {
-    if (f1 < f2) {
-      lo = x1;
-      x1 = x2;
-      f1 = f2;
-      x2 = lo + phi * (hi - lo);
-      f2 = periodogram_at(e, dt_s, x2);
-    } else {
-      hi = x2;
-      x2 = x1;
-      f2 = f1;
-      x1 = hi - phi * (hi - lo);
-      f1 = periodogram_at(e, dt_s, x1);
-    }
-  }
-  double f = 0.5 * (lo + hi);
+  // The continuous maximum between the neighbours.
+  const double lo = std::max((it->k - 1) * df, 1e-9 * df), hi = std::min((it->k + 1) * df, 0.5 / dt_s);
+  double f = golden_section_max([&](double x) { return periodogram_at(e, dt_s, x); }, lo, hi, 40);
   if (periodogram_at(e, dt_s, it->k * df) > periodogram_at(e, dt_s, f)) f = it->k * df;
   Eigen::MatrixXd cs(e.size(), 2);
   for (Eigen::Index t = 0; t < e.size(); ++t) {
@@ -502,27 +508,9 @@ PeriodicPeak common_periodic_peak(const std::vector<Eigen::VectorXd>& segments, 
       f_top = f;
     }
   }
-  // Golden section between the grid neighbours.
-  double lo = std::max(f_top - step, 1e-9), hi = std::min(f_top + step, nyquist);
-  const double phi = 0.5 * (std::sqrt(5.0) - 1.0);
-  double x1 = hi - phi * (hi - lo), x2 = lo + phi * (hi - lo);
-  double s1 = summed(x1), s2 = summed(x2);
-  for (int iter = 0; iter < 30; ++iter) {
-    if (s1 < s2) {
-      lo = x1;
-      x1 = x2;
-      s1 = s2;
-      x2 = lo + phi * (hi - lo);
-      s2 = summed(x2);
-    } else {
-      hi = x2;
-      x2 = x1;
-      s2 = s1;
-      x1 = hi - phi * (hi - lo);
-      s1 = summed(x1);
-    }
-  }
-  double f = 0.5 * (lo + hi), s_best = summed(f);
+  // The continuous maximum between the grid neighbours.
+  double f = golden_section_max(summed, std::max(f_top - step, 1e-9), std::min(f_top + step, nyquist), 40);
+  double s_best = summed(f);
   if (s_top > s_best) {
     f = f_top;
     s_best = s_top;

@@ -321,6 +321,20 @@ double bottom_time_s(const World& w) {
   }
   return static_cast<double>(k_max) * w.h_s;
 }
+
+// Blanks `marker` (a base marker index) in the frames that see the world
+// from `from_s` to before `to_s` after contact; returns how many.
+int blank(dropfit::reconstruction::Trajectories& markers, const World& w, int marker, double from_s, double to_s) {
+  int n = 0;
+  for (int i = 0; i < w.o.frames; ++i) {
+    const double tau = w.tau_of_frame(i);
+    if (tau >= from_s && tau < to_s) {
+      markers.lab_m.block(i, 3 * marker, 1, 3).setConstant(std::nan(""));
+      ++n;
+    }
+  }
+  return n;
+}
 }  // namespace
 
 // Digitised tracks as labs have them: several 4-5-frame gaps in the contact
@@ -332,19 +346,9 @@ TEST(Trial, LabDigitisingGapsKeepTheTrial) {
   const World w = make_world(WorldOptions{});
   const double t_bottom_s = bottom_time_s(w);
   dropfit::reconstruction::Trajectories markers = w.markers;
-  auto drop = [&](int marker, double from_s, double to_s) {
-    int n = 0;
-    for (int i = 0; i < w.o.frames; ++i) {
-      const double tau = w.tau_of_frame(i);
-      if (tau >= from_s && tau < to_s) {
-        markers.lab_m.block(i, 3 * marker, 1, 3).setConstant(std::nan(""));
-        ++n;
-      }
-    }
-    return n;
-  };
-  const int back = drop(1, -0.004, 0.001) + drop(1, 0.008, 0.013) + drop(1, t_bottom_s + 0.008, t_bottom_s + 0.016);
-  const int front = drop(0, t_bottom_s - 0.012, t_bottom_s - 0.008);
+  const int back = blank(markers, w, 1, -0.004, 0.001) + blank(markers, w, 1, 0.008, 0.013) +
+                   blank(markers, w, 1, t_bottom_s + 0.008, t_bottom_s + 0.016);
+  const int front = blank(markers, w, 0, t_bottom_s - 0.012, t_bottom_s - 0.008);
   ASSERT_EQ(back, 18);
   ASSERT_EQ(front, 4);
   const tr::TrialResult r = tr::analyse(fp::process(w.raw, force_options(w)), markers, trial_options(w));
@@ -366,15 +370,7 @@ TEST(Trial, GapBesideTheLowestPointIsBridged) {
   const World w = make_world(WorldOptions{});
   const double t_bottom_s = bottom_time_s(w);
   dropfit::reconstruction::Trajectories markers = w.markers;
-  int n = 0;
-  for (int i = 0; i < w.o.frames; ++i) {
-    const double tau = w.tau_of_frame(i);
-    if (tau >= t_bottom_s - 0.0055 && tau < t_bottom_s - 0.0005) {
-      markers.lab_m.block(i, 0, 1, 3).setConstant(std::nan(""));  // imp_base_front
-      ++n;
-    }
-  }
-  ASSERT_EQ(n, 5);
+  ASSERT_EQ(blank(markers, w, 0, t_bottom_s - 0.0055, t_bottom_s - 0.0005), 5);  // imp_base_front
   const tr::TrialResult r = tr::analyse(fp::process(w.raw, force_options(w)), markers, trial_options(w));
   EXPECT_TRUE(r.accepted) << r.reject_reason;
   EXPECT_NEAR(r.max_deformation_m, w.max_penetration_m, 1e-3);
@@ -387,15 +383,7 @@ TEST(Trial, LowestPointInAGapIsRejected) {
   const World w = make_world(WorldOptions{});
   const double t_bottom_s = bottom_time_s(w);
   dropfit::reconstruction::Trajectories markers = w.markers;
-  int n = 0;
-  for (int i = 0; i < w.o.frames; ++i) {
-    const double tau = w.tau_of_frame(i);
-    if (std::abs(tau - t_bottom_s) < 0.0045) {
-      markers.lab_m.block(i, 0, 1, 3).setConstant(std::nan(""));  // imp_base_front
-      ++n;
-    }
-  }
-  ASSERT_EQ(n, 9);
+  ASSERT_EQ(blank(markers, w, 0, t_bottom_s - 0.0045, t_bottom_s + 0.0045), 9);  // imp_base_front
   const tr::TrialResult r = tr::analyse(fp::process(w.raw, force_options(w)), markers, trial_options(w));
   EXPECT_FALSE(r.accepted);
   EXPECT_TRUE(contains(r.reject_reason, "lowest point")) << r.reject_reason;
