@@ -459,8 +459,9 @@ TEST(Trial, SaturatedChannelIsRejected) {
 }
 
 // One sample 20 % of the peak above its neighbours, 3 ms after the peak
-// (about 1 kN here): no mat force does that within a millisecond; rejected,
-// naming the sample. The 50 % gate this replaced let it through.
+// (about 1.6 kN on this world's 8.2 kN peak): no mat force does that within
+// a millisecond; rejected, naming the sample. The 50 % gate this replaced
+// let it through.
 TEST(Trial, ASpikeOfAFifthOfThePeakIsRejected) {
   const World w = make_world(WorldOptions{});
   Eigen::MatrixXd ch = w.raw.channels_n;
