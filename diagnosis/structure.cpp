@@ -141,6 +141,18 @@ double golden_section_max(F f, double lo, double hi, int iterations) {
   return 0.5 * (lo + hi);
 }
 
+// Least-squares sinusoid (cosine and sine columns, with an intercept) of
+// frequency f_hz fitted to e, sampled dt_s apart.
+LinearFit sinusoid_fit(const Eigen::VectorXd& e, double dt_s, double f_hz) {
+  Eigen::MatrixXd cs(e.size(), 2);
+  for (Eigen::Index t = 0; t < e.size(); ++t) {
+    const double w = 2.0 * std::numbers::pi * f_hz * dt_s * static_cast<double>(t);
+    cs(t, 0) = std::cos(w);
+    cs(t, 1) = std::sin(w);
+  }
+  return linear_fit(cs, e);
+}
+
 // Removes the least-squares line (a trend is not a period).
 Eigen::VectorXd detrend(const Eigen::VectorXd& y) {
   const Eigen::Index n = y.size();
@@ -443,13 +455,7 @@ PeriodicPeak periodogram_peak(const std::vector<Eigen::VectorXd>& segments, doub
   const double lo = std::max((it->k - 1) * df, 1e-9 * df), hi = std::min((it->k + 1) * df, 0.5 / dt_s);
   double f = golden_section_max([&](double x) { return periodogram_at(e, dt_s, x); }, lo, hi, 40);
   if (periodogram_at(e, dt_s, it->k * df) > periodogram_at(e, dt_s, f)) f = it->k * df;
-  Eigen::MatrixXd cs(e.size(), 2);
-  for (Eigen::Index t = 0; t < e.size(); ++t) {
-    const double w = 2.0 * std::numbers::pi * f * dt_s * static_cast<double>(t);
-    cs(t, 0) = std::cos(w);
-    cs(t, 1) = std::sin(w);
-  }
-  const LinearFit fit = linear_fit(cs, e);
+  const LinearFit fit = sinusoid_fit(e, dt_s, f);
   best.frequency_hz = f;
   best.amplitude = fit.coefficients.norm();
   best.share = fit.r2;
@@ -517,13 +523,7 @@ PeriodicPeak common_periodic_peak(const std::vector<Eigen::VectorXd>& segments, 
   }
   double rss = 0.0, tss = 0.0, amp2 = 0.0;
   for (const auto& u : used) {
-    Eigen::MatrixXd cs(u.e.size(), 2);
-    for (Eigen::Index t = 0; t < u.e.size(); ++t) {
-      const double w = 2.0 * std::numbers::pi * f * dt_s * static_cast<double>(t);
-      cs(t, 0) = std::cos(w);
-      cs(t, 1) = std::sin(w);
-    }
-    const LinearFit fit = linear_fit(cs, u.e);
+    const LinearFit fit = sinusoid_fit(u.e, dt_s, f);
     tss += u.e.squaredNorm();  // detrended: about zero mean
     rss += fit.rss;
     amp2 += fit.coefficients.squaredNorm();

@@ -76,8 +76,9 @@
 //   of the frames from coverage_lead_s before contact to the end of contact,
 //   with no gap longer than max_marker_gap_s. Digitised tracks have short
 //   gaps (1-5 frames, in one camera or both, and a gap in one camera can
-//   abut one in the other); such a trial is kept and its gaps stay NaN. Surface markers are optional
-//   (the impactor may hide them); their mean is NaN where any is missing.
+//   abut one in the other); such a trial is kept and its gaps stay NaN.
+//   Surface markers are optional (the impactor may hide them); their mean
+//   is NaN where any is missing.
 // - Series: every force sample from series_lead_s before contact to the end
 //   of contact; video values linearly interpolated between two present
 //   neighbouring frames at the sample's video-clock time, NaN otherwise.
@@ -90,8 +91,8 @@
 // face never seen reaching the mat, too few free-fall frames, base markers
 // missing around contact (named), the lowest point in a gap, tilt beyond
 // max_tilt_deg, clocks disagreeing by more than max_video_offset_s, and the
-// plausibility gates below. Bad options (an index out of range, no base markers) throw
-// dropfit::Error.
+// plausibility gates below. Bad options (an index out of range, no base
+// markers) throw dropfit::Error.
 //
 // Plausibility gates (physics, not tuning; each names what it saw):
 // - Force spike: a non-finite Fz sample during contact, or one sample
