@@ -13,6 +13,7 @@
 #include <numbers>
 
 #include "pipeline/pipeline.h"
+#include "pipeline/wiring.h"
 #include "samples/generator/synth.h"
 
 namespace dropfit::diagnosis {

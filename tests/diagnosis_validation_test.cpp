@@ -12,6 +12,7 @@
 
 #include "capture/io.h"
 #include "pipeline/pipeline.h"
+#include "pipeline/wiring.h"
 #include "diagnosis/diagnosis.h"
 
 namespace dropfit::diagnosis {

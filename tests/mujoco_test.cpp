@@ -68,7 +68,10 @@ Trace drop_in_mujoco(const std::string& mat_xml, double mass_kg, double velocity
   const double g = -m->opt.gravity[2];
   const int dof = m->jnt_dofadr[bottom_joint];
   Trace trace;
-  while (d->time < duration_s) {
+  // A fixed number of steps: an unstable integration makes MuJoCo warn of a
+  // bad acceleration and reset the state (time included), so that run stops.
+  const long steps = static_cast<long>(std::ceil(duration_s / m->opt.timestep));
+  for (long k = 0; k < steps && d->warning[mjWARN_BADQACC].number == 0; ++k) {
     mj_step(m, d);
     // qfrc_passive: the bottom joint's spring and damper force on the bottom
     // layer, which the ground (the plate) bears; minus the mat's weight.
