@@ -7,6 +7,7 @@
 #include <atomic>
 #include <set>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "core/parallel.h"
@@ -59,11 +60,17 @@ TEST(Progress, SharedByParallelSessionsKeepsEveryRecordWhole) {
   testing::internal::CaptureStderr();
   {
     Progress p(true);
-    // As `dropfit run A B C D`: each session reports its stages and clears
-    // the line when it ends, while the others go on.
+    // As `dropfit run A B C D`: each session reports its steps and clears
+    // the line when a stage ends, while the others go on writing. All start
+    // together, so that clearing and writing overlap.
+    std::atomic<int> started{0};
     parallel_for(kSessions, kSessions, [&](std::size_t s) {
-      for (int i = 0; i < kSteps; ++i) p.update("session " + std::to_string(s), "step " + std::to_string(i));
-      p.done();
+      started.fetch_add(1);
+      while (started.load() < kSessions) std::this_thread::yield();
+      for (int i = 0; i < kSteps; ++i) {
+        p.update("session " + std::to_string(s), "step " + std::to_string(i));
+        if (i % 4 == 3) p.done();  // a stage ends: its line cleared
+      }
     });
     p.done();
   }
