@@ -14,7 +14,8 @@
 #include <string>
 #include <vector>
 
-#include "cli/pipeline.h"
+#include "pipeline/outputs.h"
+#include "pipeline/pipeline.h"
 #include "core/error.h"
 #include "fitting/cosim.h"
 #include "fitting/models.h"
@@ -93,23 +94,26 @@ py::dict simulate(const report::FitFile& fit, double velocity_m_s, double mass_k
   fitting::Simulation s;
   {
     py::gil_scoped_release release;
-    s = pipeline::simulate_fitted(fit, impact);
+    s = pipeline::simulate_fitted(fit.model, fit.params, impact);
   }
   return simulation_dict(s);
 }
 
-// One session through the whole pipeline (`dropfit run`): every output file
-// in memory, committed to `out_dir` when one is given.
+// One session through the whole pipeline, as `dropfit run`: the state built
+// through the loop (through the fits when `diagnose` is false), every output
+// file in memory, committed to `out_dir` when one is given.
 py::dict run(const std::string& session_dir, const std::string& out_dir, bool diagnose, int threads) {
-  pipeline::RunOptions options;
-  options.diagnose = diagnose;
+  pipeline::BuildOptions options;
+  if (!diagnose) options.upto = pipeline::Stage::Fits;
   options.threads = threads;
   report::OutputSet out;
   pipeline::RunSummary summary;
   {
     py::gil_scoped_release release;
-    summary = pipeline::run_session(session_dir, options, out);
+    const pipeline::SessionState state = pipeline::build(session_dir, options);
+    pipeline::add_run_outputs(out, state);
     if (!out_dir.empty()) out.commit(out_dir, {session_dir});
+    summary = pipeline::summarise(state);
   }
   py::dict files;
   for (const auto& [path, content] : out.files()) files[py::str(path)] = py::bytes(content);
@@ -118,6 +122,7 @@ py::dict run(const std::string& session_dir, const std::string& out_dir, bool di
   d["trials"] = summary.trials;
   d["accepted"] = summary.accepted;
   d["failed_fits"] = summary.failed_fits;
+  d["final_model"] = summary.final_model;
   d["notes"] = summary.notes;
   d["files"] = files;
   return d;
