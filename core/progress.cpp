@@ -28,8 +28,9 @@ void Progress::update(const std::string& stage, const std::string& detail) {
 }
 
 void Progress::done() {
-  if (!enabled_ || !dirty_) return;
+  if (!enabled_) return;
   std::lock_guard lock(line_mutex());
+  if (!dirty_) return;
   std::fprintf(stderr, "\r\033[K");
   std::fflush(stderr);
   dirty_ = false;

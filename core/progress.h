@@ -1,6 +1,8 @@
 #pragma once
 // One self-overwriting progress line on a terminal (stderr); silent when
-// stderr is not a terminal, so logs and CI stay clean.
+// stderr is not a terminal, so logs and CI stay clean. Thread-safe: parallel
+// sessions share one Progress (`dropfit run` with several sessions), so the
+// line and its state change only under one process-wide mutex.
 #include <string>
 
 namespace dropfit {
@@ -19,8 +21,8 @@ class Progress {
   bool enabled() const { return enabled_; }
 
  private:
-  bool enabled_;
-  bool dirty_ = false;
+  const bool enabled_;  // fixed at construction: read without the lock
+  bool dirty_ = false;   // a line is shown; guarded by the line mutex
 };
 
 }  // namespace dropfit

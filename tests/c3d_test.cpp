@@ -22,6 +22,7 @@
 #include "forceplate/forceplate.h"
 #include "samples/generator/synth.h"
 #include "support/temp_dir.h"
+#include "support/shared_data.h"
 
 namespace fs = std::filesystem;
 using namespace dropfit;
@@ -595,13 +596,13 @@ TEST(C3dSession, TrialWithForceC3d) {
 // ---------------------------------------------------------------------------
 
 fs::path real_dir() {
-  return fs::path(DROPFIT_SOURCE_DIR) / ".." / "shared" / "real" / "kistler-bioware-biomdp";
+  return dropfit::testsupport::shared_path("real") / "kistler-bioware-biomdp";
 }
 
 double rms(const Eigen::VectorXd& e) { return std::sqrt(e.squaredNorm() / static_cast<double>(e.size())); }
 
 TEST(C3dReal, RawChannelsGiveBioWareFz) {
-  if (!fs::exists(real_dir())) GTEST_SKIP() << "shared/real not present";
+  DROPFIT_NEED_SHARED(real_dir());
   ForcePlateSpec plate;
   plate.sample_rate_hz = 1000.0;
   struct Case {
@@ -636,7 +637,7 @@ TEST(C3dReal, RawChannelsGiveBioWareFz) {
 }
 
 TEST(C3dReal, CentreOfPressureMatchesBioWare) {
-  if (!fs::exists(real_dir())) GTEST_SKIP() << "shared/real not present";
+  DROPFIT_NEED_SHARED(real_dir());
   ForcePlateSpec plate;
   plate.sample_rate_hz = 1000.0;
   const ForceRecord r = read_force((real_dir() / "kistler_COP.c3d").string(), plate);

@@ -24,6 +24,7 @@
 #include "core/error.h"
 #include "support/cameras.h"
 #include "support/temp_dir.h"
+#include "support/shared_data.h"
 
 namespace dropfit::capture {
 namespace {
@@ -413,8 +414,8 @@ std::vector<std::string> lines_of(const std::string& path) {
 }
 
 TEST(CaptureFormats, RealEightCameraCoefficientsReproduceTheSurvey) {
-  const fs::path real = fs::path(DROPFIT_SOURCE_DIR) / ".." / "shared" / "real" / "dlt-calibration-vaila";
-  if (!fs::exists(real)) GTEST_SKIP() << real << " is absent";
+  const fs::path real = dropfit::testsupport::shared_path("real") / "dlt-calibration-vaila";
+  DROPFIT_NEED_SHARED(real);
   TempDir dir;
   VideoSpec v;
   std::vector<std::vector<std::string>> coef_columns;

@@ -18,6 +18,7 @@
 #include "capture/io.h"
 #include "core/error.h"
 #include "support/temp_dir.h"
+#include "support/shared_data.h"
 
 namespace dropfit::capture {
 namespace {
@@ -747,8 +748,8 @@ TEST(CaptureManifestSemicolons, SpecExampleReadsVerbatim) {
 // The example as it stands in the spec today (skipped when shared/ is not
 // beside the source tree).
 TEST(CaptureManifestSemicolons, SpecFileExampleReads) {
-  const fs::path spec = fs::path(DROPFIT_SOURCE_DIR) / ".." / "shared" / "spec" / "session-format.md";
-  if (!fs::exists(spec)) GTEST_SKIP() << spec << " not found";
+  const fs::path spec = dropfit::testsupport::shared_path("spec") / "session-format.md";
+  DROPFIT_NEED_SHARED(spec);
   const std::string md = read_text(spec.string());
   const std::size_t open = md.find("```toml\n");
   ASSERT_NE(open, std::string::npos);

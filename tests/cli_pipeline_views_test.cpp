@@ -7,12 +7,12 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include <cstdlib>
 #include <filesystem>
 #include <map>
 #include <string>
 
 #include "support/cli_harness.h"
+#include "support/shared_data.h"
 
 namespace dropfit {
 namespace {
@@ -24,19 +24,8 @@ using json = nlohmann::json;
 namespace fs = std::filesystem;
 
 fs::path shared_session(const std::string& name) {
-  return fs::path(DROPFIT_SOURCE_DIR) / ".." / "shared" / "validation" / name / "session";
+  return testsupport::shared_path("validation") / name / "session";
 }
-
-bool in_ci() {
-  const char* ci = std::getenv("CI");
-  return ci && std::string(ci) == "true";
-}
-
-#define REQUIRE_SHARED(path)                                                       \
-  if (!fs::exists(path)) {                                                         \
-    if (in_ci()) FAIL() << (path) << " absent: CI runs with ../shared beside it";  \
-    GTEST_SKIP() << (path) << " absent (a user's clone has no ../shared)";          \
-  }
 
 // trial.json of every trial a command wrote, by id.
 std::map<std::string, json> trials_of(const fs::path& out) {
@@ -92,7 +81,7 @@ Views views_of(const fs::path& session, TempDir& tmp) {
 TEST(PipelineViews, EveryCommandSaysTheSameOfEachTrial) {
   for (const char* name : {"v1-realistic", "v5-outlier-lens-offset"}) {
     const fs::path session = shared_session(name);
-    REQUIRE_SHARED(session);
+    DROPFIT_NEED_SHARED(session);
     TempDir tmp;
     const Views v = views_of(session, tmp);
     ASSERT_EQ(v.run_exit, 0) << name;
@@ -110,7 +99,7 @@ TEST(PipelineViews, EveryCommandSaysTheSameOfEachTrial) {
 
 TEST(PipelineViews, SwappedCamerasAreRejectedByEveryCommand) {
   const fs::path original = shared_session("v2-linear-control");
-  REQUIRE_SHARED(original);
+  DROPFIT_NEED_SHARED(original);
   TempDir tmp;
   const fs::path session = tmp / "swapped";
   fs::copy(original, session, fs::copy_options::recursive);
@@ -135,7 +124,7 @@ TEST(PipelineViews, SwappedCamerasAreRejectedByEveryCommand) {
 // under fits/model4; the MJCF of the final model states its stable step.
 TEST(PipelineViews, TheCanonicalResultIsTheFinalModel) {
   const fs::path session = shared_session("v1-realistic");
-  REQUIRE_SHARED(session);
+  DROPFIT_NEED_SHARED(session);
   TempDir tmp;
   const auto run = run_dropfit({"run", session.string(), "--out", (tmp / "run").string()}, tmp.path());
   ASSERT_EQ(run.exit_code, 0) << run.describe();

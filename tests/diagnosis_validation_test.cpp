@@ -14,15 +14,14 @@
 #include "pipeline/pipeline.h"
 #include "pipeline/wiring.h"
 #include "diagnosis/diagnosis.h"
+#include "support/shared_data.h"
 
 namespace dropfit::diagnosis {
 namespace {
 
 std::string validation(const std::string& name) {
-  return std::string(DROPFIT_SOURCE_DIR) + "/../shared/validation/" + name + "/session";
+  return (testsupport::shared_path("validation") / name / "session").string();
 }
-
-bool have(const std::string& name) { return std::filesystem::exists(validation(name)); }
 
 CalibrationDiagnosis calibration_of(const std::string& name) {
   const Session s = capture::read_session(validation(name));
@@ -44,7 +43,7 @@ std::string report(const CalibrationDiagnosis& d) {
 TEST(ValidationCalibration, CleanSessionsNameNothing) {
   for (const std::string name : {"v1-realistic", "v2-linear-control", "v3-hysteresis", "v4-rate",
                                  "v6-formats-drift-scale"}) {
-    if (!have(name)) GTEST_SKIP() << "../shared/validation absent";
+    DROPFIT_NEED_SHARED(validation(name));
     const CalibrationDiagnosis d = calibration_of(name);
     EXPECT_TRUE(d.effects.empty()) << name << "\n" << report(d);
     EXPECT_TRUE(d.remaining.empty()) << name << "\n" << report(d);
@@ -52,7 +51,7 @@ TEST(ValidationCalibration, CleanSessionsNameNothing) {
 }
 
 TEST(ValidationCalibration, SwappedPairAndLensDistortion) {
-  if (!have("v5-outlier-lens-offset")) GTEST_SKIP() << "../shared/validation absent";
+  DROPFIT_NEED_SHARED(validation("v5-outlier-lens-offset"));
   const CalibrationDiagnosis d = calibration_of("v5-outlier-lens-offset");
   std::cerr << report(d);
   EXPECT_TRUE(named(d.effects, "outlier_marker")) << report(d);
@@ -91,7 +90,7 @@ TEST(ValidationUpstream, EachSessionNamesExactlyItsInjectedEffects) {
       {"v5-outlier-lens-offset", {"lens_distortion", "outlier_marker", "time_offset"}},
       {"v6-formats-drift-scale", {"baseline_drift", "force_scale"}}};
   for (const auto& [name, expected] : cases) {
-    if (!have(name)) GTEST_SKIP() << "../shared/validation absent";
+    DROPFIT_NEED_SHARED(validation(name));
     DiagnosisResult r;
     EXPECT_EQ(upstream_effects(name, &r), expected) << name << "\n" << r.report();
     EXPECT_FALSE(r.unexplained) << name << "\n" << r.report();
@@ -114,7 +113,7 @@ double value(const ErrorSet& e, const std::string& key) {
 
 // v5: cam1's c13 and c15 swapped, k1 = -0.10 on both cameras, video 3 ms ahead.
 TEST(ValidationUpstream, V5ParametersAndHeldOutErrors) {
-  if (!have("v5-outlier-lens-offset")) GTEST_SKIP() << "../shared/validation absent";
+  DROPFIT_NEED_SHARED(validation("v5-outlier-lens-offset"));
   DiagnosisResult r;
   upstream_effects("v5-outlier-lens-offset", &r);
   const Effect* outlier = r.find("outlier_marker");
@@ -140,7 +139,7 @@ TEST(ValidationUpstream, V5ParametersAndHeldOutErrors) {
 
 // v6: drift 25 N over the 5 s record, all channels scaled by 1.05.
 TEST(ValidationUpstream, V6ParametersAndHeldOutErrors) {
-  if (!have("v6-formats-drift-scale")) GTEST_SKIP() << "../shared/validation absent";
+  DROPFIT_NEED_SHARED(validation("v6-formats-drift-scale"));
   DiagnosisResult r;
   upstream_effects("v6-formats-drift-scale", &r);
   const Effect* drift = r.find("baseline_drift");
@@ -159,7 +158,7 @@ TEST(ValidationUpstream, V6ParametersAndHeldOutErrors) {
 // Clean sessions: the free-flight balance gives 1 within 0.5 % on each.
 TEST(ValidationUpstream, ImpulseBalanceIsOneOnCleanSessions) {
   for (const std::string name : {"v1-realistic", "v2-linear-control", "v3-hysteresis", "v4-rate"}) {
-    if (!have(name)) GTEST_SKIP() << "../shared/validation absent";
+    DROPFIT_NEED_SHARED(validation(name));
     const Session s = capture::read_session(validation(name));
     const auto state = pipeline::build(s, {.upto = pipeline::Stage::Trials});
     int n = 0;
@@ -193,7 +192,7 @@ TEST(ValidationLoop, EachSessionIsNamedExactly) {
       {"v5-outlier-lens-offset", {"lens_distortion", "outlier_marker", "stiffness_nonlinearity", "time_offset"}},
       {"v6-formats-drift-scale", {"baseline_drift", "force_scale", "stiffness_nonlinearity"}}};
   for (const auto& [name, expected] : cases) {
-    if (!have(name)) GTEST_SKIP() << "../shared/validation absent";
+    DROPFIT_NEED_SHARED(validation(name));
     const DiagnosisResult r = diagnose(pipeline::build(capture::read_session(validation(name)), {.upto = pipeline::Stage::Trials}),
                                        DiagnosisOptions{});
     std::vector<std::string> names;
@@ -214,7 +213,7 @@ TEST(ValidationLoop, EachSessionIsNamedExactly) {
 // only 55-65 samples, so the period is found in their sum; the strongest bin
 // of one trial was 12 % off).
 TEST(ValidationLoop, APlateRingingIsLeftUnexplainedWithItsFrequency) {
-  if (!have("v2-linear-control")) GTEST_SKIP() << "../shared/validation absent";
+  DROPFIT_NEED_SHARED(validation("v2-linear-control"));
   std::ifstream in(validation("v2-linear-control") + "/../truth.json");
   const nlohmann::json truth = nlohmann::json::parse(in);
   Session s = capture::read_session(validation("v2-linear-control"));

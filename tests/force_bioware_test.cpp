@@ -19,6 +19,7 @@
 #include "forceplate/forceplate.h"
 #include "samples/generator/synth.h"
 #include "support/temp_dir.h"
+#include "support/shared_data.h"
 
 namespace fs = std::filesystem;
 using namespace dropfit;
@@ -29,7 +30,7 @@ namespace {
 using dropfit::testsupport::TempDir;
 
 fs::path real(const std::string& name) {
-  return fs::path(DROPFIT_SOURCE_DIR) / ".." / "shared" / "real" / "kistler-bioware-biomdp" / name;
+  return dropfit::testsupport::shared_path("real") / "kistler-bioware-biomdp" / name;
 }
 
 template <class F>
@@ -299,7 +300,7 @@ TEST(BioWareManifest, PlateKey) {
 // ---------------------------------------------------------------------------
 
 TEST(BioWareReal, DropJumpTwoPlates) {
-  if (!fs::exists(real("kistler_DJ_2plates.txt"))) GTEST_SKIP() << "shared/real not present";
+  DROPFIT_NEED_SHARED(real("kistler_DJ_2plates.txt"));
   const BioWareExport ex = read_bioware_export(real("kistler_DJ_2plates.txt").string());
   EXPECT_EQ(ex.version, "5.4.3.0");
   ASSERT_EQ(ex.n_plates, 2);
@@ -325,7 +326,7 @@ TEST(BioWareReal, DropJumpTwoPlates) {
 }
 
 TEST(BioWareReal, CounterMovementJumpFxFyFzOnly) {
-  if (!fs::exists(real("kistler_CMJ_1plate.txt"))) GTEST_SKIP() << "shared/real not present";
+  DROPFIT_NEED_SHARED(real("kistler_CMJ_1plate.txt"));
   const BioWareExport ex = read_bioware_export(real("kistler_CMJ_1plate.txt").string());
   EXPECT_EQ(ex.version, "5.2.1.3");
   ASSERT_EQ(ex.n_plates, 1);
@@ -338,7 +339,7 @@ TEST(BioWareReal, CounterMovementJumpFxFyFzOnly) {
 }
 
 TEST(BioWareReal, CentreOfPressureExportInMetres) {
-  if (!fs::exists(real("kistler_COP.txt"))) GTEST_SKIP() << "shared/real not present";
+  DROPFIT_NEED_SHARED(real("kistler_COP.txt"));
   const BioWareExport ex = read_bioware_export(real("kistler_COP.txt").string());
   EXPECT_EQ(ex.version, "5.1.1.0");
   EXPECT_DOUBLE_EQ(ex.sample_rate_hz, 50.0);

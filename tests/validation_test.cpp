@@ -26,6 +26,7 @@
 #include <string>
 
 #include "support/cli_harness.h"
+#include "support/shared_data.h"
 
 namespace dropfit {
 namespace {
@@ -36,7 +37,7 @@ using clitest::TempDir;
 using json = nlohmann::json;
 namespace fs = std::filesystem;
 
-fs::path validation_root() { return fs::path(DROPFIT_SOURCE_DIR) / ".." / "shared" / "validation"; }
+fs::path validation_root() { return testsupport::shared_path("validation"); }
 
 struct Outcome {
   json truth, fit;
@@ -96,14 +97,14 @@ void expect_recovers(const Outcome& o, bool cubic) {
 }
 
 TEST(Validation, LinearControlModel4FromTrial3) {
-  if (!fs::exists(validation_root() / "v2-linear-control")) GTEST_SKIP() << "../shared/validation is absent";
+  DROPFIT_NEED_SHARED(validation_root() / "v2-linear-control");
   expect_recovers(run_session("v2-linear-control", {}), false);
 }
 
 // The realistic mat (a stiffening top spring) with its cubic term fitted:
 // the chain's linear parameters come back as for a linear mat.
 TEST(Validation, RealisticMatModel4WithStiffeningFromTrial3) {
-  if (!fs::exists(validation_root() / "v1-realistic")) GTEST_SKIP() << "../shared/validation is absent";
+  DROPFIT_NEED_SHARED(validation_root() / "v1-realistic");
   expect_recovers(run_session("v1-realistic", {"--effect", "k1_cubic_n_m3"}), true);
 }
 
