@@ -40,7 +40,18 @@ namespace dropfit::capture {
 //   cameras and points non-empty lists of unique non-empty names (cameras
 //   also name files, so no '/' or '\\'); base_markers (non-empty) and
 //   surface_markers are names in video.points; trial ids unique and non-empty,
-//   dirs non-empty and relative.
+//   dirs non-empty, relative and each trial's own (two trials reading one
+//   folder are one drop counted twice).
+// Physical ranges (a typo or a unit slip otherwise flows into every result;
+//   the error names the field, its line and the range): gravity 9.70-9.90
+//   m/s^2, impactor mass 1-200 kg, layer thickness 0.001-2 m and mass
+//   0-500 kg, mat length and width 0.05-20 m, frame rate 20 Hz-1 MHz, force
+//   sample rate 100 Hz-1 MHz, a_m and b_m 0.01-2 m, az0_m +-0.5 m,
+//   mat_top_z_m 0-3 m, trigger threshold 0.1-5000 N. A value outside on
+//   purpose is accepted when [session] outside_physical_range lists its
+//   dotted name (e.g. ["session.gravity_m_s2"]).
+// Optional: forceplate.lowpass_hz and lowpass_order (2): the charge
+//   amplifier's Butterworth low-pass, when the lab set one.
 // Several key/values on one line separated by ';', as the spec's own
 // example writes its layers (`name = "carpet";  thickness_m = 0.005;
 // mass_kg = 0.0`), are accepted although TOML is not: before parsing, such

@@ -245,10 +245,33 @@ class ManifestReader {
   // [session]: name and gravity (optional table).
   void read_session(const toml::table& root, Manifest& m) {
     if (const toml::table* t = table(root, "session", false)) {
-      check_keys(*t, "session", {"name", "gravity_m_s2"});
+      check_keys(*t, "session", {"name", "gravity_m_s2", "outside_physical_range"});
       m.name = string(*t, "session", "name", false).value_or("");
+      if (t->get("outside_physical_range"))
+        m.outside_physical_range = names(*t, "session", "outside_physical_range", false);
+      overrides_ = m.outside_physical_range;
       m.gravity_m_s2 = number(*t, "session", "gravity_m_s2", Check::Positive, false).value_or(9.81);
+      // Earth's surface gravity is 9.764-9.834 m/s^2 from the equator to the poles.
+      plausible(*t, "session", "gravity_m_s2", 9.70, 9.90, "m/s^2 (Earth's surface: 9.76-9.84)");
     }
+  }
+
+  // A number the manifest gives must lie within the range a drop-test lab
+  // can have (a typo or a unit slip, e.g. grams for kilograms, otherwise
+  // flows into every result), unless [session] outside_physical_range names
+  // the field. Absent keys are not checked.
+  void plausible(const toml::table& t, const std::string& prefix, std::string_view key, double lo, double hi,
+                 const std::string& range) const {
+    const toml::node* node = t.get(key);
+    if (!node || !node->is_number()) return;
+    const std::string field = dotted(prefix, key);
+    if (std::find(overrides_.begin(), overrides_.end(), field) != overrides_.end()) return;
+    const double v = *node->value<double>();
+    if (v < lo || v > hi)
+      fail(*node, field,
+           fmt::format("{} is outside the physical range {}-{} {}; if the value is right, list \"{}\" in "
+                       "[session] outside_physical_range",
+                       v, lo, hi, range, field));
   }
 
   // [calibration]: a DLT coefficient file instead of the frame (optional).
@@ -279,6 +302,7 @@ class ManifestReader {
              fmt::format("camera name '{}' names calibration/{}.csv: it may not contain '/' or '\\'", cam, cam));
     }
     m.video.frame_rate_hz = *number(video, "video", "frame_rate_hz", Check::Positive, true);
+    plausible(video, "video", "frame_rate_hz", 20.0, 1e6, "Hz");
     m.video.points = names(video, "video", "points", true);
     m.video.trigger_frame = static_cast<int>(*integer(video, "video", "trigger_frame", 0, true));
     const std::optional<std::string> origin = string(video, "video", "image_origin", false);
@@ -303,6 +327,8 @@ class ManifestReader {
     const toml::table& imp = *table(root, "impactor", true);
     check_keys(imp, "impactor", {"mass_kg", "footprint_m", "base_markers", "base_marker_height_m"});
     m.impactor.mass_kg = *number(imp, "impactor", "mass_kg", Check::Positive, true);
+    plausible(imp, "impactor", "mass_kg", 1.0, 200.0, "kg");
+    plausible(imp, "impactor", "base_marker_height_m", -1.0, 1.0, "m");
     m.impactor.footprint_m = footprint(imp);
     m.impactor.base_markers = markers(imp, "impactor", "base_markers", m.video.points, true);
     m.impactor.base_marker_height_m = number(imp, "impactor", "base_marker_height_m", Check::Finite, false).value_or(0.0);
@@ -314,6 +340,8 @@ class ManifestReader {
     check_keys(mat, "mat", {"length_m", "width_m", "surface_markers", "layers"});
     m.mat.length_m = *number(mat, "mat", "length_m", Check::Positive, true);
     m.mat.width_m = *number(mat, "mat", "width_m", Check::Positive, true);
+    plausible(mat, "mat", "length_m", 0.05, 20.0, "m");
+    plausible(mat, "mat", "width_m", 0.05, 20.0, "m");
     m.mat.surface_markers = markers(mat, "mat", "surface_markers", m.video.points, false);
     const toml::array& layers = table_array(mat, "mat", "layers");
     for (std::size_t i = 0; i < layers.size(); ++i) {
@@ -324,6 +352,8 @@ class ManifestReader {
       spec.name = *string(layer, prefix, "name", true);
       spec.thickness_m = *number(layer, prefix, "thickness_m", Check::Positive, true);
       spec.mass_kg = *number(layer, prefix, "mass_kg", Check::NonNegative, true);
+      plausible(layer, prefix, "thickness_m", 0.001, 2.0, "m");
+      plausible(layer, prefix, "mass_kg", 0.0, 500.0, "kg");
       m.mat.layers.push_back(spec);
     }
   }
@@ -333,7 +363,7 @@ class ManifestReader {
     const toml::table& plate = *table(root, "forceplate", true);
     check_keys(plate, "forceplate",
                {"model", "sample_rate_hz", "trigger_threshold_n", "pretrigger_fraction", "a_m", "b_m", "az0_m",
-                "mat_top_z_m", "plate"});
+                "mat_top_z_m", "plate", "lowpass_hz", "lowpass_order"});
     m.forceplate.model = string(plate, "forceplate", "model", false).value_or("");
     m.forceplate.sample_rate_hz = *number(plate, "forceplate", "sample_rate_hz", Check::Positive, true);
     m.forceplate.trigger_threshold_n = *number(plate, "forceplate", "trigger_threshold_n", Check::Positive, true);
@@ -343,12 +373,24 @@ class ManifestReader {
     m.forceplate.az0_m = *number(plate, "forceplate", "az0_m", Check::Finite, true);
     m.forceplate.mat_top_z_m = *number(plate, "forceplate", "mat_top_z_m", Check::Finite, true);
     m.forceplate.plate = static_cast<int>(integer(plate, "forceplate", "plate", 1, false).value_or(1));
+    m.forceplate.lowpass_hz = number(plate, "forceplate", "lowpass_hz", Check::Positive, false).value_or(0.0);
+    m.forceplate.lowpass_order =
+        static_cast<int>(integer(plate, "forceplate", "lowpass_order", 1, false).value_or(2));
+    plausible(plate, "forceplate", "sample_rate_hz", 100.0, 1e6, "Hz");
+    plausible(plate, "forceplate", "trigger_threshold_n", 0.1, 5000.0, "N");
+    plausible(plate, "forceplate", "a_m", 0.01, 2.0, "m");
+    plausible(plate, "forceplate", "b_m", 0.01, 2.0, "m");
+    plausible(plate, "forceplate", "az0_m", -0.5, 0.5, "m");
+    plausible(plate, "forceplate", "mat_top_z_m", 0.0, 3.0, "m");
+    plausible(plate, "forceplate", "lowpass_hz", 1.0, 1e6, "Hz");
+    plausible(plate, "forceplate", "lowpass_order", 1.0, 8.0, "");
   }
 
-  // [[trial]]: ids (unique) and folders (relative).
+  // [[trial]]: ids (unique) and folders (relative, one trial each: two
+  // trials reading one folder would be one drop counted twice).
   void read_trials(const toml::table& root, Manifest& m) {
     const toml::array& trials = table_array(root, "", "trial");
-    std::map<std::string, std::size_t> seen;
+    std::map<std::string, std::size_t> seen, folders;
     for (std::size_t i = 0; i < trials.size(); ++i) {
       const std::string prefix = fmt::format("trial[{}]", i);
       const toml::table& t = *trials.get(i)->as_table();
@@ -365,6 +407,13 @@ class ManifestReader {
       if (!inserted)
         fail(*t.get("id"), prefix + ".id",
              fmt::format("duplicate trial id \"{}\" (also trial[{}])", spec.id, it->second));
+      std::string folder = fs::path(spec.dir).lexically_normal().generic_string();
+      while (folder.size() > 1 && folder.back() == '/') folder.pop_back();
+      const auto [dir_it, new_dir] = folders.emplace(folder, i);
+      if (!new_dir)
+        fail(*t.get("dir"), prefix + ".dir",
+             fmt::format("trial \"{}\" reads folder \"{}\", as trial[{}] does: each trial is its own recording",
+                         spec.id, spec.dir, dir_it->second));
       m.trials.push_back(spec);
     }
   }
@@ -592,6 +641,7 @@ class ManifestReader {
 
   std::string file_;
   SplitToml lines_;
+  std::vector<std::string> overrides_;  // [session] outside_physical_range
 };
 
 // Shortest text that reads back to the same double, always with a decimal
@@ -635,7 +685,10 @@ void write_manifest(const std::string& path, const Manifest& m) {
   std::string s;
   auto out = std::back_inserter(s);
   fmt::format_to(out, "# dropfit session manifest (shared/spec/session-format.md)\n\n");
-  fmt::format_to(out, "[session]\nname = {}\ngravity_m_s2 = {}\n\n", toml_string(m.name), toml_float(m.gravity_m_s2));
+  fmt::format_to(out, "[session]\nname = {}\ngravity_m_s2 = {}\n", toml_string(m.name), toml_float(m.gravity_m_s2));
+  if (!m.outside_physical_range.empty())
+    fmt::format_to(out, "outside_physical_range = {}\n", toml_strings(m.outside_physical_range));
+  fmt::format_to(out, "\n");
   fmt::format_to(out, "[impactor]\nmass_kg = {}\nfootprint_m = [{}, {}]\nbase_markers = {}\nbase_marker_height_m = {}\n\n",
                  toml_float(m.impactor.mass_kg), toml_float(m.impactor.footprint_m.x()),
                  toml_float(m.impactor.footprint_m.y()), toml_strings(m.impactor.base_markers),
@@ -658,6 +711,7 @@ void write_manifest(const std::string& path, const Manifest& m) {
                  toml_float(p.pretrigger_fraction), toml_float(p.a_m), toml_float(p.b_m), toml_float(p.az0_m),
                  toml_float(p.mat_top_z_m));
   if (p.plate != 1) fmt::format_to(out, "plate = {}\n", p.plate);
+  if (p.lowpass_hz > 0.0) fmt::format_to(out, "lowpass_hz = {}\nlowpass_order = {}\n", toml_float(p.lowpass_hz), p.lowpass_order);
   if (!m.calibration.dlt_coefficients.empty())
     fmt::format_to(out, "\n[calibration]\ndlt_coefficients = {}\n", toml_string(m.calibration.dlt_coefficients));
   for (const TrialSpec& t : m.trials)

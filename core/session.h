@@ -53,6 +53,11 @@ struct ForcePlateSpec {
   double az0_m = -0.040;
   double mat_top_z_m = 0.205;  // undeformed mat top in the lab frame
   int plate = 1;  // 1-based: the plate of a several-plate export (BioWare blocks, C3D FORCE_PLATFORM)
+  // The charge amplifier's low-pass filter when the lab declares one (0:
+  // none declared): a Butterworth of this order and corner frequency delays
+  // the force by its group delay (forceplate::butterworth_delay_s).
+  double lowpass_hz = 0.0;
+  int lowpass_order = 2;
 };
 
 struct TrialSpec {
@@ -70,6 +75,9 @@ struct CalibrationSpec {
 struct Manifest {
   std::string name;
   double gravity_m_s2 = 9.81;
+  // Fields the lab declares outside their physical range on purpose
+  // ([session] outside_physical_range, dotted names as in errors).
+  std::vector<std::string> outside_physical_range;
   ImpactorSpec impactor;
   MatSpec mat;
   VideoSpec video;

@@ -317,7 +317,26 @@ DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& optio
     const fitting::FitResult* run_fit = state.fit(mo.fit.model);
     if (run_fit && !correction.drift && correction.gain == 1.0 && mo.fit.model == state.baseline_fit_options.model)
       mo.baseline = run_fit;
-    if (!data.empty()) {
+    // Between trials: is it one mat in every trial? (state.fit_data is in
+    // recording order.) A changing mat leaves the effects of one mat unjudged.
+    std::optional<fitting::FitResult> own_baseline;
+    if (options.order && data.size() >= 4 && !mo.baseline) {
+      try {
+        own_baseline = fitting::fit(data, mo.fit);
+        mo.baseline = &*own_baseline;
+      } catch (const std::exception& e) {
+        result.notes.push_back(fmt::format("between trials: not judged: the baseline fit failed: {}", e.what()));
+      }
+    }
+    std::optional<OrderDiagnosis> order;
+    if (options.order && mo.baseline && data.size() >= 4) order = diagnose_order(data, *mo.baseline, options.order_stage);
+    const bool mat_changes = order && order->changed;
+    if (mat_changes) {
+      flush();
+      result.notes.push_back(
+          "mat: effects of one mat (stiffening, hysteresis, rate dependence, layer mass) not judged: the mat changes "
+          "between trials, so no single set of parameters describes them all");
+    } else if (!data.empty()) {
       const MatDiagnosis md = diagnose_mat(data, mo);
       // Sync once more, on the contacts the final mat model fits.
       if (sync && md.fit_after)
@@ -329,6 +348,7 @@ DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& optio
       const bool corrected = correction.drift || correction.gain != 1.0;
       if ((!md.effects.empty() || corrected) && md.fit_after) result.mat_fit = md.fit_after;
     }
+    if (order) append(result, *order);
   }
   flush();
   result.plate_correction = correction;

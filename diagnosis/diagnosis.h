@@ -406,6 +406,45 @@ struct MatDiagnosis {
 
 MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const MatStageOptions& options = {});
 
+// ---- Between trials ----------------------------------------------------------
+//
+// A joint fit assumes one mat in every trial. Foams lose stiffness under
+// repeated impacts (and recover with rest), so each trial's stiffness scale
+// against one model of the mat (every stiffness of the fitted model times
+// s, s chosen so the model's peak force at the trial's impact speed is the
+// measured one) is regressed on the trial's impact speed (the model's own
+// misfit with speed) and on its recording order (the order the trials are
+// listed in). A slope with order beyond t_{alpha/2, n-3} SEs and beyond
+// min_rate_per_trial is a mat that changes between trials
+// ("mat_change_between_trials", with its rate per trial and each trial's
+// scale); the mat stage's effects are then not judged (one set of
+// parameters does not hold). When order follows speed the two cannot be
+// told apart and the question is not judged (a note says so).
+
+struct OrderStageOptions {
+  double alpha = 0.01;
+  double min_rate_per_trial = 0.01;           // 1 % stiffness per trial
+  double scale_sd_floor = 0.003;              // the scale's own precision (model misfit at one speed)
+  double max_order_speed_correlation = 0.9;
+};
+
+struct OrderDiagnosis {
+  std::vector<Effect> effects;
+  std::vector<Rejected> rejected;
+  std::vector<Remaining> remaining;
+  std::vector<std::string> notes;
+  std::vector<std::string> ids;           // accepted trials, recording order
+  std::vector<double> stiffness_scale;    // per id; NaN when it could not be found
+  double rate_per_trial = std::numeric_limits<double>::quiet_NaN();  // relative stiffness change per trial
+  double rate_se = std::numeric_limits<double>::quiet_NaN();
+  bool changed = false;                   // the mat changes between trials
+};
+
+// trials in recording order (rejected ones skipped); fit: one model of the
+// mat fitted to them (its model and params are used).
+OrderDiagnosis diagnose_order(const std::vector<fitting::TrialData>& trials, const fitting::FitResult& fit,
+                              const OrderStageOptions& options = {});
+
 // ---- Table mode -------------------------------------------------------------
 
 struct TableStageOptions {
@@ -481,7 +520,8 @@ struct SessionData {
 };
 
 struct DiagnosisOptions {
-  bool calibration = true, sync = true, forceplate = true, mat = true;
+  bool calibration = true, sync = true, forceplate = true, mat = true, order = true;
+  OrderStageOptions order_stage;
   SyncStageOptions sync_stage;
   ForceplateStageOptions forceplate_stage;  // impactor mass and gravity taken from the state
   MatStageOptions mat_stage;                // fit options: the state's baseline unless mat_stage_fit_set
@@ -497,6 +537,34 @@ struct DiagnosisOptions {
 // assessed: upstream unresolved" (a note, and no effects named from bad
 // inputs). Throws dropfit::Error when no trial is accepted.
 DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& options = {});
+
+// ---- The session screen (before any fit) --------------------------------------
+//
+// Trials that cannot be measurements of the drops they claim, rejected
+// (TrialResult::accepted = false with the reason, and the fit data's
+// accepted flag, so that no fit and no median-trial choice uses them):
+// - a force record identical, sample for sample, to an earlier trial's
+//   (one recording under two ids: copied files, a folder read twice);
+// - a trial whose impulse-momentum balance in the impactor's free flight
+//   (impulse_balance) departs from the other trials' median by more than
+//   max(min_tolerance, sd_factor x its own uncertainty): the mat momentum
+//   left in its balance and its impact velocity's interval, with the
+//   others' scatter. The plate's gain and the declared mass move every
+//   trial alike (the loop's force_scale names them); one trial alone off
+//   has a fault of its own (a channel, a second impact, a frame count).
+// The pipeline calls it after building the state and before fitting.
+struct ScreenOptions {
+  double min_tolerance = 0.03;
+  double sd_factor = 4.0;
+};
+struct ScreenResult {
+  struct Rejection {
+    std::string id, reason;
+  };
+  std::vector<Rejection> rejected;
+  std::vector<std::string> notes;
+};
+ScreenResult screen_trials(SessionState& state, const ScreenOptions& options = {});
 
 // The plate stage's trials from a state, on the force clock with the
 // declared clock relation shifted by offset_s (video minus force).

@@ -123,9 +123,15 @@ double impulse_ratio(const PlateTrial& t, const PlateCorrection& c, double mass_
   const auto w = std::max<Eigen::Index>(5, static_cast<Eigen::Index>(std::lround(0.03 / dt)));
   Eigen::Index i = 0;
   while (i < n && t.t_s(i) < t.end_time_s + 0.01) ++i;
+  // The contact ended with the force back at zero: the impactor left the
+  // mat. A later rise to half its weight is a second landing (or a hand
+  // setting it down), whose impulse is not this contact's: the still part
+  // is sought before it.
+  Eigen::Index limit = i;
+  while (limit < n && !(f(limit) > 0.5 * weight)) ++limit;
   Eigen::Index ie = -1;
   bool resting = false;
-  for (; i + w <= n; i += w / 2) {
+  for (; i + w <= limit; i += w / 2) {
     const Eigen::VectorXd seg = f.segment(i, w);
     if (!seg.allFinite()) continue;
     const double mean = seg.mean();
@@ -517,6 +523,15 @@ void diagnose_force_scale(const std::vector<PlateTrial>& trials, const Forceplat
       e.estimate.push_back({"mat_momentum_bound_n_s", detail::rms(detail::to_vector(mat_momenta))});
     e.evidence += fmt::format("; balance ends in the impactor's free flight after separation in {} of {} trials",
                               by_flight, nr);
+    // The balance weighs the plate's gain times the true mass against the
+    // declared mass: a gain error and a wrong declared mass give the same
+    // ratio (and so does the plate's weighing of the impactor at rest), so
+    // both are named.
+    e.evidence += fmt::format(
+        "; equally an impactor of {:.2f} kg where the manifest declares {:.2f} kg (impulse against momentum "
+        "cannot tell a plate gain from a wrong declared mass: weigh the impactor, or check the plate's calibration)",
+        gain * o.impactor_mass_kg, o.impactor_mass_kg);
+    e.estimate.push_back({"impactor_mass_if_gain_is_1_kg", gain * o.impactor_mass_kg});
     out.effects.push_back(std::move(e));
     out.correction.gain = gain;
   } else if (stands_out) {
@@ -527,11 +542,14 @@ void diagnose_force_scale(const std::vector<PlateTrial>& trials, const Forceplat
                                         100.0 * o.min_scale_error)});
   }
   const double scatter = detail::sample_sd(rho) / gain;
-  if (scatter > 0.03)
+  if (scatter > 0.03) {
+    std::string per_trial;
+    for (Eigen::Index i = 0; i < nr; ++i) per_trial += fmt::format("{}{} {:.3f}", i ? ", " : "", ids[i], rho(i));
     out.remaining.push_back({"forceplate", "impulse_scatter",
-                             fmt::format("impulse/momentum scatters by {:.1f} % between trials: no constant gain "
+                             fmt::format("impulse/momentum scatters by {:.1f} % between trials ({}): no constant gain "
                                          "explains it",
-                                         100.0 * scatter)});
+                                         100.0 * scatter, per_trial)});
+  }
 }
 
 }  // namespace

@@ -82,7 +82,9 @@ SyncDiagnosis diagnose_sync(const std::vector<trial::TrialResult>& trials, const
     eff.name = "time_offset";
     eff.evidence = fmt::format(
         "video and force clocks disagree by {:.2f} ms (+- {:.2f} ms) in every trial ({:.2f} to {:.2f} ms over {}); "
-        "the {} agrees within {:.2f} ms once it is applied",
+        "the {} agrees within {:.2f} ms once it is applied (a delay of the force channel nobody declared, e.g. an "
+        "amplifier low-pass, 0.225 ms x 1 kHz / corner for a 2nd-order Butterworth, reads as clock offset here: "
+        "drop data cannot tell the two apart; [forceplate] lowpass_hz declares it)",
         ms * mean, ms * out.offset_se_s, ms * d.minCoeff(), ms * d.maxCoeff(), n,
         have_independent ? "independent contact-phase trajectory estimate" : "held-out trials' estimate",
         detail::max_abs(after));

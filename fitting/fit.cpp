@@ -1681,14 +1681,21 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
     }
   }
 
-  // Every trial predicted (each its own simulation: in parallel, over `threads`).
+  // Every trial predicted (each its own simulation: in parallel, over
+  // `threads`). A rejected trial whose data cannot be predicted (a force
+  // record without a contact) is left out with a warning: it never sinks
+  // the fit of the accepted ones.
   std::vector<TrialReport> predicted(trials.size());
+  std::vector<std::string> unpredicted(trials.size());
   {
     std::vector<std::exception_ptr> failures(trials.size());
     // (A custom simulator is not assumed thread-safe.)
     parallel_for(trials.size(), options.simulator ? 1 : options.threads, [&](size_t q) {
       try {
         predicted[q] = predict(trials[q], res.params, options);
+      } catch (const std::exception& e) {
+        if (trials[q].accepted) failures[q] = std::current_exception();
+        else unpredicted[q] = e.what();
       } catch (...) {
         failures[q] = std::current_exception();
       }
@@ -1698,6 +1705,10 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
   }
   for (size_t q = 0; q < trials.size(); ++q) {
     const TrialData& t = trials[q];
+    if (!unpredicted[q].empty()) {
+      res.warnings.push_back(fmt::format("rejected trial {} not predicted: {}", t.id, unpredicted[q]));
+      continue;
+    }
     TrialReport rep = std::move(predicted[q]);
     rep.train = std::find(res.train_ids.begin(), res.train_ids.end(), t.id) != res.train_ids.end();
     if (rep.train) {

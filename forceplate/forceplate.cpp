@@ -30,15 +30,29 @@
 // the noise band, the instant interpolated at the band's edge.
 //
 // Saturation: a channel at or beyond the amplifier range (when given), or a
-// channel that holds its extreme value flat for several samples after
-// arriving at it and leaving it steeply (a smooth peak flattens gradually;
-// a clipped one does not).
+// channel that holds its extreme value flat, within its noise, for several
+// samples after arriving at it and before leaving it steeply (a smooth peak
+// turns gradually; a clipped one does not; check_flat_tops).
+//
+// Channel consistency (eight-channel records): the four vertical sensors
+// hold a rigid plate, whose deflections lie in one plane, so for equal
+// sensors the twist Fz1 - Fz2 + Fz3 - Fz4 is zero wherever the load stands
+// and each sensor's share of Fz is the one the centre of pressure implies,
+// (1 +- ax / a +- ay / b) / 4. A dead or stuck sensor (share 0), a sign
+// reversal (negative share), or a shear column exchanged with a vertical one
+// gives a twist of a third of Fz or more; a few per cent of sensor mismatch
+// gives a few per cent. A vertical drop has shear of a few per cent of Fz
+// (the impactor's tilt), so a shear channel carrying a vertical load shows
+// too. Either beyond its bound (12 % twist, 25 % shear) rejects the record,
+// naming the suspect channels.
 #include "forceplate/forceplate.h"
 
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <numbers>
 #include <vector>
 
 #include "core/error.h"
@@ -48,6 +62,10 @@ namespace dropfit::forceplate {
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+// Consistency bounds of an eight-channel record under a drop's load
+// (ProcessOptions::check_channels).
+constexpr double kMaxTwistFraction = 0.12;
+constexpr double kMaxShearFraction = 0.25;
 
 double median(std::vector<double> v) {
   if (v.empty()) return kNaN;
@@ -92,6 +110,10 @@ RobustLevel robust_level(const Eigen::VectorXd& x) {
   return {mean, std::sqrt(var)};
 }
 
+std::string channel_name(const Resultants& raw, Eigen::Index c) {
+  return c < static_cast<Eigen::Index>(raw.channel_names.size()) ? raw.channel_names[c] : fmt::format("{}", c + 1);
+}
+
 void check_no_nan(const Eigen::MatrixXd& data, int columns, const std::vector<std::string>& names) {
   for (int c = 0; c < columns; ++c) {
     for (Eigen::Index i = 0; i < data.rows(); ++i) {
@@ -102,53 +124,60 @@ void check_no_nan(const Eigen::MatrixXd& data, int columns, const std::vector<st
   }
 }
 
-// Throws when a channel looks clipped (see the file comment).
-void check_saturation(const Resultants& raw, const ProcessOptions& options) {
+// Throws when a channel reaches the amplifier range given in the options.
+void check_range(const Resultants& raw, const ProcessOptions& options) {
+  if (!(options.saturation_n > 0.0)) return;
+  const Eigen::MatrixXd& x = raw.channels_n;
+  for (Eigen::Index c = 0; c < x.cols(); ++c) {
+    Eigen::Index at = 0;
+    const double extreme = x.col(c).cwiseAbs().maxCoeff(&at);
+    if (extreme >= options.saturation_n) {
+      throw Error(fmt::format("force record: channel {} saturated ({:.1f} N at sample {}, range {:.1f} N)",
+                              channel_name(raw, c), extreme, at, options.saturation_n));
+    }
+  }
+}
+
+// Throws when a channel has a flat top (see the file comment). Each
+// channel's zero and noise SD come from the quiet samples [0, quiet_end).
+// The top is the run of consecutive samples within 8 noise SDs of the
+// channel's extreme (a clipped amplifier adds its ADC noise after the clip,
+// so the clipped samples scatter by a few SDs about one value). A smooth
+// peak stays within that band for R samples only because it turns there:
+// a parabola that does enters and leaves it at about 4 band / R per sample.
+// A clipped channel arrives at and leaves its rail at the signal's own
+// slope, several times that; so R >= saturation_flat_samples with both
+// shoulders at least 3 times the parabola's slope (and 1 % of the extreme
+// per sample, for noiseless rails) is a flat top.
+void check_flat_tops(const Resultants& raw, int quiet_end, const ProcessOptions& options) {
+  const int flat = options.saturation_flat_samples;
+  if (flat <= 1) return;
   const Eigen::MatrixXd& x = raw.channels_n;
   const Eigen::Index n = x.rows();
   for (Eigen::Index c = 0; c < x.cols(); ++c) {
-    const std::string name = c < static_cast<Eigen::Index>(raw.channel_names.size())
-                                 ? raw.channel_names[c]
-                                 : fmt::format("{}", c + 1);
-    const double extreme = x.col(c).cwiseAbs().maxCoeff();
-    if (options.saturation_n > 0.0 && extreme >= options.saturation_n) {
-      Eigen::Index at = 0;
-      x.col(c).cwiseAbs().maxCoeff(&at);
-      throw Error(fmt::format("force record: channel {} saturated ({:.1f} N at sample {}, range {:.1f} N)", name,
-                              extreme, at, options.saturation_n));
-    }
-    const int flat = options.saturation_flat_samples;
-    if (flat <= 1 || extreme <= options.trigger_threshold_n) continue;
-    const double tol = 1e-6 * extreme;
-    const double steep = 0.01 * extreme;  // per sample
-    Eigen::Index i = 0;
-    while (i < n) {
-      if (std::abs(x(i, c)) < extreme - tol) {
-        ++i;
-        continue;
-      }
-      Eigen::Index end = i;
-      while (end < n && std::abs(x(end, c)) >= extreme - tol) ++end;
-      const Eigen::Index run = end - i;
-      if (run >= flat) {
-        auto mean_slope = [&](Eigen::Index from, Eigen::Index to) {  // |differences| over [from, to)
-          double sum = 0.0;
-          int k = 0;
-          for (Eigen::Index s = std::max<Eigen::Index>(from, 1); s < std::min(to, n); ++s, ++k) {
-            sum += std::abs(x(s, c) - x(s - 1, c));
-          }
-          return k > 0 ? sum / k : kNaN;
-        };
-        const double in = mean_slope(i - 3, i + 1);   // arriving: the steps up to the run's first sample
-        const double out = mean_slope(end, end + 3);  // leaving
-        const bool steep_in = std::isfinite(in) && in >= steep;
-        const bool steep_out = !std::isfinite(out) || out >= steep;
-        if (steep_in && steep_out) {
-          throw Error(fmt::format("force record: channel {} saturated (flat at {:.1f} N for samples {}-{})", name,
-                                  x(i, c), i, end - 1));
-        }
-      }
-      i = end;
+    const RobustLevel zero = robust_level(x.col(c).head(quiet_end));
+    Eigen::VectorXd y = x.col(c).array() - zero.mean;
+    if (-y.minCoeff() > y.maxCoeff()) y = -y;  // the sign the channel is loaded in
+    Eigen::Index at = 0;
+    const double extreme = y.maxCoeff(&at);
+    if (extreme <= std::max(options.trigger_threshold_n, 20.0 * zero.sd)) continue;
+    const double band = std::max(8.0 * zero.sd, 1e-6 * extreme);
+    Eigen::Index first = at, end = at + 1;  // the run about the extreme: [first, end)
+    while (first > 0 && y[first - 1] >= extreme - band) --first;
+    while (end < n && y[end] >= extreme - band) ++end;
+    const Eigen::Index run = end - first;
+    if (run < flat) continue;
+    const double smooth = 4.0 * band / static_cast<double>(run) * (1.0 + 3.0 / static_cast<double>(run));
+    const double steep = std::max(3.0 * smooth, 0.01 * extreme);
+    const double in = first >= 3 ? (y[first] - y[first - 3]) / 3.0 : kNaN;
+    const double out = end + 2 < n ? (y[end - 1] - y[end + 2]) / 3.0 : kNaN;
+    const bool steep_in = std::isfinite(in) && in >= steep;
+    const bool steep_out = !std::isfinite(out) || out >= steep;
+    if (steep_in && steep_out) {
+      throw Error(fmt::format(
+          "force record: channel {} saturated (flat at {:.1f} N for samples {}-{}, {} samples within {:.1f} N, "
+          "arriving at {:.0f} N and leaving at {:.0f} N per sample): the clipped part is not the mat's force",
+          channel_name(raw, c), x(at, c), first, end - 1, run, band, in, std::isfinite(out) ? out : 0.0));
     }
   }
 }
@@ -346,7 +375,7 @@ double check_record(const Resultants& raw, const ProcessOptions& options) {
     throw Error(fmt::format("force record: samples are {:.6f} s apart, but the sample rate is {} Hz", dt,
                             options.sample_rate_hz));
   }
-  if (raw.channels_n.size() > 0) check_saturation(raw, options);
+  if (raw.channels_n.size() > 0) check_range(raw, options);
   return dt;
 }
 
@@ -364,7 +393,10 @@ void zero_plate(const Resultants& raw, int quiet_end, int declared, const Proces
     if (c == 2) out.noise_n = std::max(level.sd, options.min_noise_n);
   }
   out.quiet_samples = quiet_end;
-  out.plate.t_s = raw.t_s.array() - raw.t_s[declared];
+  // A declared amplifier low-pass delays what each sample shows by its group
+  // delay: the sample recorded at t shows the load at t - delay.
+  const double delay_s = options.lowpass_hz > 0.0 ? butterworth_delay_s(options.lowpass_hz, options.lowpass_order) : 0.0;
+  out.plate.t_s = raw.t_s.array() - raw.t_s[declared] - delay_s;
   out.plate.f_n = raw.f_n.rowwise() - out.offset.head<3>().transpose();
   out.plate.m_n_m = raw.m_n_m.rowwise() - out.offset.tail<3>().transpose();
 }
@@ -457,7 +489,68 @@ void finish_plate(const Resultants& raw, const ProcessOptions& options, ForceTri
   out.cop_unavailable = raw.cop_unavailable;
 }
 
+// Throws when the eight channels of a Kistler record cannot be one rigid
+// plate's under the contact (see forceplate.h, ProcessOptions::check_channels).
+void check_eight_channels(const ForceTrial& trial, int quiet_end) {
+  const Eigen::MatrixXd& x = trial.plate.channels_n;
+  if (x.cols() != 8 || trial.plate.channel_names != eight_channel_names() || quiet_end < 2) return;
+  Eigen::MatrixXd z(x.rows(), 8);  // zeroed on the quiet part
+  for (int c = 0; c < 8; ++c) z.col(c) = x.col(c).array() - robust_level(x.col(c).head(quiet_end)).mean;
+  const Eigen::VectorXd fz = z.col(4) + z.col(5) + z.col(6) + z.col(7);
+  const double peak = trial.peak_fz_n;
+  std::vector<int> loaded;  // the contact's samples above 30 % of its peak
+  for (int i = trial.contact_index; i <= trial.end_index && i < fz.size(); ++i)
+    if (i >= 0 && fz[i] >= 0.3 * peak) loaded.push_back(i);
+  if (loaded.size() < 5 || !(peak > 0.0)) return;
+  auto median_of = [&](auto&& share) {
+    std::vector<double> v;
+    for (int i : loaded) v.push_back(share(i));
+    return median(v);
+  };
+  std::array<double, 8> shares{};
+  for (int c = 0; c < 8; ++c) shares[c] = median_of([&](int i) { return z(i, c) / fz[i]; });
+  const double twist = median_of([&](int i) { return (z(i, 4) - z(i, 5) + z(i, 6) - z(i, 7)) / fz[i]; });
+  const double shear_x = median_of([&](int i) { return (z(i, 0) + z(i, 1)) / fz[i]; });
+  const double shear_y = median_of([&](int i) { return (z(i, 2) + z(i, 3)) / fz[i]; });
+  std::vector<std::string> broken;
+  if (std::abs(twist) > kMaxTwistFraction)
+    broken.push_back(fmt::format("the vertical sensors' twist Fz1 - Fz2 + Fz3 - Fz4 is {:+.0f} % of Fz (a rigid "
+                                 "plate keeps it near 0 wherever the load stands)",
+                                 100.0 * twist));
+  if (std::max(std::abs(shear_x), std::abs(shear_y)) > kMaxShearFraction)
+    broken.push_back(fmt::format("the shear is {:+.0f} % (Fx) and {:+.0f} % (Fy) of Fz (a vertical drop stays "
+                                 "within a few per cent)",
+                                 100.0 * shear_x, 100.0 * shear_y));
+  std::vector<std::string> suspects;
+  const auto& names = eight_channel_names();
+  for (int c = 4; c < 8; ++c) {
+    if (shares[c] < -0.05) suspects.push_back(names[c] + " reads tension (sign reversed?)");
+    else if (std::abs(shares[c]) < 0.03) suspects.push_back(names[c] + " reads almost nothing (dead or stuck?)");
+  }
+  for (int c = 0; c < 4; ++c)
+    if (std::abs(shares[c]) > 0.12) suspects.push_back(names[c] + " carries a vertical share (exchanged?)");
+  // Shares alone do not reject: a load near a sensor's edge may unload the opposite one.
+  if (broken.empty()) return;
+  std::string detail;
+  for (int c = 0; c < 8; ++c) detail += fmt::format("{}{} {:+.1f} %", c ? ", " : "", names[c], 100.0 * shares[c]);
+  throw Error(fmt::format(
+      "force record: the eight channels are not one rigid plate's under the contact: {}; channel shares of Fz "
+      "over samples {}-{} (above 30 % of the {:.0f} N peak): {}; {}",
+      fmt::join(broken, "; "), loaded.front(), loaded.back(), peak, detail,
+      suspects.empty() ? std::string("a channel is dead, stuck, exchanged, sign-reversed or miswired")
+                       : fmt::format("{}", fmt::join(suspects, ", "))));
+}
+
 }  // namespace
+
+double butterworth_delay_s(double corner_hz, int order) {
+  if (!(corner_hz > 0.0) || order < 1) throw Error(fmt::format("low-pass: corner {} Hz, order {}", corner_hz, order));
+  // H(s) = prod 1 / (1 - s / p_k), p_k = w_c exp(i theta_k) on the left half
+  // circle: the delay at low frequency is sum -Re(1 / p_k) = sum sin(...) / w_c.
+  double sum = 0.0;
+  for (int k = 1; k <= order; ++k) sum += std::sin((2.0 * k - 1.0) * std::numbers::pi / (2.0 * order));
+  return sum / (2.0 * std::numbers::pi * corner_hz);
+}
 
 void ProcessOptions::validate() const {
   constexpr std::string_view w = "forceplate options";
@@ -473,6 +566,8 @@ void ProcessOptions::validate() const {
   check::non_negative(w, "cop_min_fz_n", cop_min_fz_n);
   check::non_negative(w, "saturation_n (0: off)", saturation_n);
   check::at_least(w, "saturation_flat_samples (0 or 1: off)", saturation_flat_samples, 0);
+  check::non_negative(w, "lowpass_hz (0: none declared)", lowpass_hz);
+  check::at_least(w, "lowpass_order", lowpass_order, 1);
 }
 
 ForceTrial process(const Resultants& raw, const ProcessOptions& options) {
@@ -524,7 +619,9 @@ ForceTrial process(const Resultants& raw, const ProcessOptions& options) {
     peak_and_end(fz, t, crossing, band, dt, out);
     break;
   }
+  if (raw.channels_n.size() > 0) check_flat_tops(raw, quiet_end, options);
   finish_plate(raw, options, out);
+  if (options.check_channels) check_eight_channels(out, quiet_end);
   return out;
 }
 

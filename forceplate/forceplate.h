@@ -101,6 +101,15 @@ struct ProcessOptions {
   // Independently of saturation_n: a channel that holds its extreme value for
   // this many samples or more after arriving at it steeply is clipped.
   int saturation_flat_samples = 4;
+  // Eight-channel records: reject a record whose channels cannot be one
+  // rigid plate's under the contact (a dead, stuck, exchanged or
+  // sign-reversed channel; forceplate.cpp).
+  bool check_channels = true;
+  // The charge amplifier's Butterworth low-pass, when declared (0: none):
+  // its group delay is taken out of the force clock (what the sample at t
+  // shows happened at t - delay). An undeclared one reads as clock offset.
+  double lowpass_hz = 0.0;
+  int lowpass_order = 2;
 
   // Throws dropfit::Error naming the field and value when one is out of
   // range (NaN, a negative rate or time, a zero count); process() calls it.
@@ -129,10 +138,16 @@ struct ForceTrial {
   std::string report() const;
 };
 
+// The low-frequency group delay of an order-n Butterworth low-pass at
+// corner_hz: sum over its poles of sin((2k - 1) pi / 2n) / (2 pi f_c)
+// (2nd order at 520 Hz: 0.433 ms).
+double butterworth_delay_s(double corner_hz, int order);
+
 // Zeroes, finds the trigger crossing, the contact onset, the peak and the end
 // of contact (methods in forceplate.cpp's comments). Channels in raw.absent
 // stay NaN (offset NaN). Throws dropfit::Error when Fz is absent, a present
-// force or moment is NaN, a channel is saturated, the pre-trigger part
+// force or moment is NaN, a channel is saturated (at the range or flat
+// topped), the eight channels are not one rigid plate's, the pre-trigger part
 // is too short for a zero offset, there is no trigger crossing, or the
 // crossing is far from the declared trigger sample.
 ForceTrial process(const Resultants& raw, const ProcessOptions& options);

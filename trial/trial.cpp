@@ -323,6 +323,49 @@ std::pair<double, double> contact_on_video(const forceplate::ForceTrial* force, 
   return {start_v, end_v};
 }
 
+// The impactor is rigid: the distance between two base markers is one
+// length in every frame, to within the reconstruction noise. A frame where
+// it departs by more than max(10 mm, 6 robust SDs) from its median over
+// frames [first, last] has a marker mistracked, swapped with another or
+// come loose; its face height (their mean) is then wrong by about half the
+// jump. Returns the reason; empty when every pair holds its length.
+std::string rigidity_reason(const reconstruction::Trajectories& markers, const TrialOptions& o, int first, int last) {
+  const auto& b = o.base_markers;
+  first = std::max(first, 0);
+  last = std::min(last, markers.n_frames() - 1);
+  for (std::size_t i = 0; i < b.size(); ++i) {
+    for (std::size_t j = i + 1; j < b.size(); ++j) {
+      std::vector<double> d;
+      std::vector<int> frame;
+      for (int f = first; f <= last; ++f) {
+        const Eigen::Vector3d a = markers.lab_m.row(f).segment<3>(3 * b[i]).transpose();
+        const Eigen::Vector3d c = markers.lab_m.row(f).segment<3>(3 * b[j]).transpose();
+        if (!a.allFinite() || !c.allFinite()) continue;
+        d.push_back((a - c).norm());
+        frame.push_back(f);
+      }
+      if (d.size() < 10) continue;
+      std::vector<double> sorted = d;
+      std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2), sorted.end());
+      const double med = sorted[sorted.size() / 2];
+      std::vector<double> dev;
+      for (double x : d) dev.push_back(std::abs(x - med));
+      std::nth_element(dev.begin(), dev.begin() + static_cast<std::ptrdiff_t>(dev.size() / 2), dev.end());
+      const double limit = std::max(0.010, 6.0 * 1.4826 * dev[dev.size() / 2]);
+      int worst = -1;
+      double worst_dev = 0.0;
+      for (std::size_t k = 0; k < d.size(); ++k)
+        if (std::abs(d[k] - med) > std::max(limit, worst_dev)) worst = frame[k], worst_dev = std::abs(d[k] - med);
+      if (worst >= 0)
+        return fmt::format(
+            "base markers {} and {} are {:.1f} mm apart but {:.1f} mm off that in frame {} (the impactor is rigid): a "
+            "marker mistracked, swapped or loose",
+            point_name(o, b[i]), point_name(o, b[j]), 1e3 * med, 1e3 * worst_dev, worst);
+    }
+  }
+  return {};
+}
+
 // Base-marker coverage from coverage_lead_s before contact to frame `last`,
 // as a reason; empty when every base marker is there often enough.
 std::string coverage_reason(const reconstruction::Trajectories& markers, const TrialOptions& o,
@@ -602,6 +645,8 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
     const int first = static_cast<int>(std::ceil(clock.frame(start_v)));
     const int last = static_cast<int>(std::floor(clock.frame(end_v)));
     if (std::string r = coverage_reason(markers, o, clock, start_v, last); !r.empty()) reasons.push_back(r);
+    const int lead = static_cast<int>(std::lround(o.freefall_window_s * o.frame_rate_hz));
+    if (std::string r = rigidity_reason(markers, o, first - lead, last); !r.empty()) reasons.push_back(r);
     if (std::string r = max_deformation(h, first, last, o, clock, offset, res); !r.empty()) reasons.push_back(r);
     res.tilt_deg = worst_tilt_deg(markers, o, first, last);
     if (std::isfinite(res.tilt_deg) && res.tilt_deg > o.max_tilt_deg) {

@@ -65,6 +65,11 @@
 //   seen on each side of the lowest one within that window, or within twice
 //   it when a gap is in the way (otherwise the bottom lies in a gap and the
 //   trial is rejected).
+// - Rigidity: the distance between each pair of base markers, from the
+//   free-fall window to the end of contact, must stay within max(10 mm, 6
+//   robust SDs) of its median (the impactor is rigid); a frame beyond it has
+//   a marker mistracked, swapped or loose, and the trial is rejected naming
+//   the pair and the frame.
 // - Tilt: per frame, with two base markers the base line's angle from
 //   horizontal (the tilt about the line itself cannot be seen); with three or
 //   more the angle of the base plane's normal (least squares plane, SVD) from

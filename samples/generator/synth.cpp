@@ -149,6 +149,13 @@ void validate(const SynthOptions& o) {
   require(o.effects.lens_distortion_px >= 0.0, "lens_distortion_px must not be negative");
   require(o.effects.hysteresis_h >= 0.0 && o.effects.hysteresis_h < 1.0, "hysteresis_elastic h must lie in [0, 1)");
   require(o.effects.outlier_marker_px >= 0.0, "outlier_marker must not be negative");
+  const InstrumentFaults& f = o.faults;
+  for (int c : {f.dead_channel, f.reversed_channel, f.exchange_a, f.exchange_b})
+    require(c >= -1 && c < 8, fmt::format("fault channel {} is not one of 0-7", c));
+  require(f.saturation_n >= 0.0 && f.amplifier_lowpass_hz >= 0.0 && f.declared_mass_kg >= 0.0,
+          "saturation, low-pass corner and declared mass must not be negative");
+  require(f.amplifier_lowpass_order == 2 || f.amplifier_lowpass_order == 4, "the low-pass order is 2 or 4");
+  require(f.softening_per_trial >= 0.0 && f.softening_per_trial < 1.0, "softening per trial must lie in [0, 1)");
   for (const Gap& g : o.gaps)
     require(g.trial >= 0 && g.trial < static_cast<int>(o.impact_velocities_m_s.size()) && g.n_frames >= 0 &&
                 g.first_frame >= 0,
@@ -324,6 +331,35 @@ void set_effect(Effects& e, const std::string& name, double magnitude) {
     e.layer_mass_shift_kg = magnitude;
   else
     throw Error(fmt::format("unknown effect '{}' (known: {})", name, fmt::join(effect_names(), ", ")));
+}
+
+std::vector<std::string> fault_names() {
+  return {"dead_channel", "reversed_channel", "exchanged_channels", "saturation", "amplifier_lowpass",
+          "softening",    "declared_mass",    "second_impact"};
+}
+
+void set_fault(SynthOptions& o, const std::string& name, double magnitude) {
+  if (!std::isfinite(magnitude)) throw Error(fmt::format("fault {}: magnitude must be finite", name));
+  InstrumentFaults& f = o.faults;
+  const int whole = static_cast<int>(std::lround(magnitude));
+  if (name == "dead_channel")
+    f.dead_channel = whole;
+  else if (name == "reversed_channel")
+    f.reversed_channel = whole;
+  else if (name == "exchanged_channels")
+    f.exchange_a = whole / 10, f.exchange_b = whole % 10;
+  else if (name == "saturation")
+    f.saturation_n = magnitude;
+  else if (name == "amplifier_lowpass")
+    f.amplifier_lowpass_hz = magnitude;
+  else if (name == "softening")
+    f.softening_per_trial = magnitude;
+  else if (name == "declared_mass")
+    f.declared_mass_kg = magnitude;
+  else if (name == "second_impact")
+    o.catch_at_apex = magnitude == 0.0;
+  else
+    throw Error(fmt::format("unknown fault '{}' (known: {})", name, fmt::join(fault_names(), ", ")));
 }
 
 MatParams default_mat_params(ModelChoice model_choice, const std::vector<LayerSpec>& layers) {
@@ -759,7 +795,7 @@ void fill_manifest(const SynthOptions& o, double mat_top_m, const SynthTruth& tr
   Manifest& m = session.manifest;
   m.name = fmt::format("synthetic session (dropfit-synth, seed {})", o.seed);
   m.gravity_m_s2 = g;
-  m.impactor.mass_kg = o.impactor_mass_kg;
+  m.impactor.mass_kg = o.faults.declared_mass_kg > 0.0 ? o.faults.declared_mass_kg : o.impactor_mass_kg;
   m.impactor.footprint_m = o.footprint_m;
   m.impactor.base_markers = {"imp_base_front", "imp_base_back"};
   m.impactor.base_marker_height_m = o.base_marker_height_m;
@@ -801,6 +837,76 @@ void note_sync_and_plate_effects(const SynthOptions& o, SynthTruth& truth) {
                              fmt::format("every channel reads {} times the true load", fx.force_scale)});
 }
 
+// Notes the instrument faults in the truth (stage "instrument").
+void note_faults(const SynthOptions& o, SynthTruth& truth) {
+  const InstrumentFaults& f = o.faults;
+  static const char* const channel[8] = {"Fx12", "Fx34", "Fy14", "Fy23", "Fz1", "Fz2", "Fz3", "Fz4"};
+  const std::string which = f.trials.empty() ? std::string("every trial")
+                                             : fmt::format("trials (0-based) {}", fmt::join(f.trials, " "));
+  if (f.dead_channel >= 0)
+    truth.effects.push_back({"instrument", "dead_channel", static_cast<double>(f.dead_channel), "channel",
+                             fmt::format("{} reads only its noise and offset in {}", channel[f.dead_channel], which)});
+  if (f.reversed_channel >= 0)
+    truth.effects.push_back({"instrument", "reversed_channel", static_cast<double>(f.reversed_channel), "channel",
+                             fmt::format("{} reads the negative of its load in {}", channel[f.reversed_channel],
+                                         which)});
+  if (f.exchange_a >= 0 && f.exchange_b >= 0)
+    truth.effects.push_back({"instrument", "exchanged_channels", 10.0 * f.exchange_a + f.exchange_b, "channels",
+                             fmt::format("columns {} and {} exchanged in {}", channel[f.exchange_a],
+                                         channel[f.exchange_b], which)});
+  if (f.saturation_n > 0.0)
+    truth.effects.push_back({"instrument", "saturation", f.saturation_n, "N",
+                             fmt::format("each channel clipped at +-{} N before the ADC noise in {}", f.saturation_n,
+                                         which)});
+  if (f.amplifier_lowpass_hz > 0.0)
+    truth.effects.push_back({"instrument", "amplifier_lowpass", f.amplifier_lowpass_hz, "Hz",
+                             fmt::format("the analog force through a Butterworth low-pass of order {} at {} Hz",
+                                         f.amplifier_lowpass_order, f.amplifier_lowpass_hz)});
+  if (f.softening_per_trial > 0.0)
+    truth.effects.push_back({"mat", "softening", f.softening_per_trial, "per trial",
+                             "every stiffness of trial k (recording order, 0-based) times (1 - s)^k"});
+  if (f.declared_mass_kg > 0.0 && f.declared_mass_kg != o.impactor_mass_kg)
+    truth.effects.push_back({"instrument", "declared_mass", f.declared_mass_kg, "kg",
+                             fmt::format("the manifest declares {} kg; the impactor has {} kg", f.declared_mass_kg,
+                                         o.impactor_mass_kg)});
+}
+
+// Whether the channel faults and saturation apply to trial ti.
+bool faulty_trial(const InstrumentFaults& f, std::size_t ti) {
+  return f.trials.empty() || std::find(f.trials.begin(), f.trials.end(), static_cast<int>(ti)) != f.trials.end();
+}
+
+// The analog force the amplifier passes on: x (sampled every dt) through a
+// Butterworth low-pass of order 2 or 4 at corner_hz (cascaded second-order
+// sections, bilinear transform with the corner prewarped), from rest.
+Eigen::VectorXd butterworth(const Eigen::VectorXd& x, double dt, double corner_hz, int order) {
+  Eigen::VectorXd y = x;
+  const double k = std::tan(kPi * corner_hz * dt);
+  for (int section = 0; section < order / 2; ++section) {
+    // Pole pair angle: q = 1 / (2 sin((2 section + 1) pi / (2 order))).
+    const double q = 1.0 / (2.0 * std::sin((2.0 * section + 1.0) * kPi / (2.0 * order)));
+    const double norm = 1.0 / (1.0 + k / q + k * k);
+    const double b0 = k * k * norm, b1 = 2.0 * b0, b2 = b0;
+    const double a1 = 2.0 * (k * k - 1.0) * norm, a2 = (1.0 - k / q + k * k) * norm;
+    const Eigen::VectorXd in = y;
+    double x1 = 0.0, x2 = 0.0, y1 = 0.0, y2 = 0.0;
+    for (Eigen::Index i = 0; i < in.size(); ++i) {
+      const double out = b0 * in[i] + b1 * x1 + b2 * x2 - a1 * y1 - a2 * y2;
+      x2 = x1, x1 = in[i], y2 = y1, y1 = out;
+      y[i] = out;
+    }
+  }
+  return y;
+}
+
+// The mat of trial ti: every stiffness times (1 - softening)^ti.
+MatParams trial_params(const SynthOptions& o, const MatParams& params, std::size_t ti) {
+  MatParams p = params;
+  const double f = std::pow(1.0 - o.faults.softening_per_trial, static_cast<double>(ti));
+  p.k1_n_m *= f, p.k2_n_m *= f, p.k3_n_m *= f, p.k1_cubic_n_m3 *= f, p.maxwell_k_n_m *= f;
+  return p;
+}
+
 // What every trial shares: options, true parameters, markers, cameras and record sizes.
 struct TrialSetup {
   const SynthOptions& o;
@@ -837,9 +943,8 @@ Eigen::Vector2d draw_trial_pose(const SynthOptions& o, std::size_t ti, TrialTrut
 }
 
 // The chain simulation from first contact (the generator's own physics.h) and the rebound speed.
-ChainSimulation simulate_trial_impact(const TrialSetup& setup, double v, TrialTruth& tt) {
+ChainSimulation simulate_trial_impact(const TrialSetup& setup, const MatParams& params, double v, TrialTruth& tt) {
   const SynthOptions& o = setup.o;
-  const MatParams& params = setup.params;
   const double g = setup.g, fs = setup.fs, t_end_force = setup.t_end_force, t_end_video = setup.t_end_video;
   // -- Physics from first contact: the generator's own (physics.h).
   ChainImpact impact;
@@ -901,19 +1006,20 @@ void summarise_contact(const ChainSimulation& sim, const Eigen::Vector2d& face_s
 }
 
 // The time from contact to the noise-free trigger crossing (s); throws when the force never reaches it.
-double contact_to_trigger_s(const SynthOptions& o, const ChainSimulation& sim, double fs, const std::string& id) {
+double contact_to_trigger_s(const SynthOptions& o, const Eigen::VectorXd& plate_grf_n, double fs,
+                            const std::string& id) {
   const Effects& fx = o.effects;
   // -- Trigger: the plate's zeroed Fz (gain, drift and noise included)
   // first reaches the threshold at sample npre (t = 0); contact sits a
   // random sub-sample phase before the noise-free crossing.
   const double scale = fx.force_scale;
   double tau25 = -1.0;
-  for (Eigen::Index k = 0; k < sim.grf_n.size(); ++k)
-    if (scale * sim.grf_n(k) >= o.trigger_threshold_n) {
+  for (Eigen::Index k = 0; k < plate_grf_n.size(); ++k)
+    if (scale * plate_grf_n(k) >= o.trigger_threshold_n) {
       if (k == 0) {
         tau25 = 0.0;
       } else {
-        const double a = scale * sim.grf_n(k - 1), b = scale * sim.grf_n(k);
+        const double a = scale * plate_grf_n(k - 1), b = scale * plate_grf_n(k);
         tau25 = (static_cast<double>(k - 1) + (o.trigger_threshold_n - a) / (b - a)) * kSimDt;
       }
       break;
@@ -931,10 +1037,12 @@ struct ForceRecord {
 };
 
 // Records the plate's channels, placing contact so the trigger fires at sample npre.
-ForceRecord record_force(const TrialSetup& setup, std::size_t ti, const ChainSimulation& sim, double tau25,
-                         TrialTruth& tt) {
+ForceRecord record_force(const TrialSetup& setup, std::size_t ti, const ChainSimulation& sim,
+                         const Eigen::VectorXd& plate_grf_n, double tau25, TrialTruth& tt) {
   const SynthOptions& o = setup.o;
   const Effects& fx = o.effects;
+  const InstrumentFaults& faults = o.faults;
+  const bool faulty = faulty_trial(faults, ti);
   const int n = setup.n, npre = setup.npre;
   const double fs = setup.fs;
   const double scale = fx.force_scale;
@@ -955,7 +1063,7 @@ ForceRecord record_force(const TrialSetup& setup, std::size_t ti, const ChainSim
       t_s(j) = t;
       const double tau = t - tt.contact_time_s;
       grf(j) = tau < 0.0 ? 0.0 : interp(sim.grf_n, tau, kSimDt);
-      const double fz = scale * grf(j);
+      const double fz = scale * (tau < 0.0 ? 0.0 : interp(plate_grf_n, tau, kSimDt));
       const Eigen::Vector3d f(tt.shear_fraction.x() * fz, tt.shear_fraction.y() * fz, fz);
       Eigen::Matrix<double, 8, 1> ch = kistler_channels(f, tt.cop_m, o.plate_a_m, o.plate_b_m, o.plate_az0_m);
       double drift = 0.0;
@@ -964,6 +1072,9 @@ ForceRecord record_force(const TrialSetup& setup, std::size_t ti, const ChainSim
       else if (t > 0.0)
         drift = fx.baseline_drift_n_s * t;
       ch.tail<4>().array() += 0.25 * drift;
+      if (faulty && faults.saturation_n > 0.0) ch = ch.cwiseMax(-faults.saturation_n).cwiseMin(faults.saturation_n);
+      if (faulty && faults.dead_channel >= 0) ch(faults.dead_channel) = 0.0;
+      if (faulty && faults.reversed_channel >= 0) ch(faults.reversed_channel) = -ch(faults.reversed_channel);
       for (int c = 0; c < 8; ++c) ch(c) += o.channel_noise_n * fr.normal();
       data.row(j) = ch.transpose();
     }
@@ -973,6 +1084,7 @@ ForceRecord record_force(const TrialSetup& setup, std::size_t ti, const ChainSim
       if (data.row(j).tail<4>().sum() >= o.trigger_threshold_n) first = j;
     triggered = first == npre;
   }
+  if (faulty && faults.exchange_a >= 0 && faults.exchange_b >= 0) data.col(faults.exchange_a).swap(data.col(faults.exchange_b));
   require(triggered, fmt::format("trial {}: cannot place the trigger at sample {} with {} N channel noise", tt.id,
                                  npre, o.channel_noise_n));
   for (int j = 0; j < n; ++j)
@@ -1121,7 +1233,6 @@ struct SimulatedTrial {
 // Simulates trial ti: pose, physics, force record, video and gaps.
 SimulatedTrial simulate_trial(const TrialSetup& setup, std::size_t ti) {
   const SynthOptions& o = setup.o;
-  const MatParams& params = setup.params;
   const double g = setup.g, offset_s = setup.offset_s, fs = setup.fs;
   const int npre = setup.npre;
   const Eigen::Vector2d(&mat_xy)[4] = setup.layout.mat_xy;
@@ -1131,13 +1242,14 @@ SimulatedTrial simulate_trial(const TrialSetup& setup, std::size_t ti) {
   tt.id = fmt::format("trial{}", ti + 1);
   tt.impact_velocity_m_s = v;
   tt.model = o.model;
+  const MatParams params = trial_params(o, setup.params, ti);
   tt.params = params;
   tt.video_offset_s = offset_s;
   tt.trigger_index = npre;
   tt.drop_height_m = v * v / (2.0 * g);
 
   const Eigen::Vector2d face_slopes = draw_trial_pose(o, ti, tt);
-  const ChainSimulation sim = simulate_trial_impact(setup, v, tt);
+  const ChainSimulation sim = simulate_trial_impact(setup, params, v, tt);
   const TrialMotion motion{sim, v, g, o.model != ModelKind::Model1};
   tt.dish_factors.clear();
   for (const Eigen::Vector2d& xy : mat_xy) {
@@ -1147,8 +1259,13 @@ SimulatedTrial simulate_trial(const TrialSetup& setup, std::size_t ti) {
                                   : 1.0);
   }
   summarise_contact(sim, face_slopes, tt);
-  const double tau25 = contact_to_trigger_s(o, sim, fs, tt.id);
-  const ForceRecord rec = record_force(setup, ti, sim, tau25, tt);
+  // What reaches the ADC: the analog force, through the amplifier's low-pass when there is one.
+  const Eigen::VectorXd plate_grf_n =
+      o.faults.amplifier_lowpass_hz > 0.0
+          ? butterworth(sim.grf_n, kSimDt, o.faults.amplifier_lowpass_hz, o.faults.amplifier_lowpass_order)
+          : sim.grf_n;
+  const double tau25 = contact_to_trigger_s(o, plate_grf_n, fs, tt.id);
+  const ForceRecord rec = record_force(setup, ti, sim, plate_grf_n, tau25, tt);
   fill_force_truth(setup, sim, motion, rec, tt);
   MarkerTracks2D tracks = render_markers(setup, ti, motion, face_slopes, tt);
   apply_gaps(setup, ti, tracks, tt);
@@ -1188,6 +1305,7 @@ SyntheticSession make_session(const SynthOptions& o) {
   fill_manifest(o, mat_top_m, truth, session);
   Manifest& m = session.manifest;
   note_sync_and_plate_effects(o, truth);
+  note_faults(o, truth);
   const double offset_s = fx.time_offset_ms * 1e-3;
 
   const int n_pts = static_cast<int>(m.video.points.size());

@@ -147,6 +147,40 @@ struct Gap {
   int n_frames = 0;
 };
 
+// Instrument faults a lab meets (not effects of the results format: the
+// instrument is broken, not the model incomplete). Every default is "off";
+// the truth names each one set. Channels are numbered 0-7 in the file's
+// order Fx12 Fx34 Fy14 Fy23 Fz1 Fz2 Fz3 Fz4.
+struct InstrumentFaults {
+  int dead_channel = -1;       // reads only its noise and zero offset (a broken cable or amplifier)
+  int reversed_channel = -1;   // reads the negative of its load (a wrongly wired charge amplifier)
+  int exchange_a = -1;         // two columns exchanged in the file (both >= 0 to apply)
+  int exchange_b = -1;
+  // Charge amplifier range: each channel clipped at +- this after the drift
+  // and before the noise (the ADC's); 0 = off.
+  double saturation_n = 0.0;
+  // The analog force through an Nth-order Butterworth low-pass at this
+  // corner before sampling (0 = off); the noise is the ADC's, after it.
+  double amplifier_lowpass_hz = 0.0;
+  int amplifier_lowpass_order = 2;
+  // The mat loses stiffness between trials: every stiffness of trial k
+  // (0-based, recording order = the order of impact_velocities_m_s) is
+  // (1 - softening_per_trial)^k times the mat's.
+  double softening_per_trial = 0.0;
+  // The impactor mass the manifest declares (0: the true impactor_mass_kg).
+  double declared_mass_kg = 0.0;
+  // The trials (0-based) the channel faults and saturation apply to; empty = every trial.
+  std::vector<int> trials;
+};
+
+// Sets one instrument fault by name: dead_channel, reversed_channel
+// (channel 0-7), exchanged_channels (a two-digit number: 47 exchanges
+// channels 4 and 7), saturation (N per channel), amplifier_lowpass (Hz),
+// softening (fraction per trial), declared_mass (kg), second_impact (any
+// non-zero: the impactor is not caught and lands again). Throws
+// dropfit::Error on an unknown name.
+std::vector<std::string> fault_names();
+
 enum class MatMarkerMotion {
   FollowSurface,  // classic: the mat top under the impactor
   Dish,           // lab: top layer travel times exp(-((d - dish_centre) / dish_width)^2)
@@ -231,7 +265,10 @@ struct SynthOptions {
 
   std::vector<Gap> gaps;
   Effects effects;
+  InstrumentFaults faults;
 };
+
+void set_fault(SynthOptions& options, const std::string& name, double magnitude);
 
 // The paper-like default parameters of each model (see synth.cpp for how the
 // Model 4 set was chosen); masses from the declared layers (m1 = all layers

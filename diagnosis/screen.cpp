@@ -1,0 +1,117 @@
+// The session screen (diagnosis.h, screen_trials): trials that cannot be
+// measurements of the drops they claim to be, rejected before any fit.
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "diagnosis/diagnosis.h"
+#include "diagnosis/internal.h"
+
+namespace dropfit::diagnosis {
+namespace {
+
+void reject(SessionState& state, std::size_t i, const std::string& reason, ScreenResult& out) {
+  trial::TrialResult& r = state.trials[i].result;
+  r.accepted = false;
+  r.reject_reason = r.reject_reason.empty() ? reason : r.reject_reason + "; " + reason;
+  if (i < state.fit_data.size()) state.fit_data[i].accepted = false;
+  out.rejected.push_back({r.id, reason});
+}
+
+bool same_record(const forceplate::ForceTrial& a, const forceplate::ForceTrial& b) {
+  const Eigen::MatrixXd& x = a.plate.f_n;
+  const Eigen::MatrixXd& y = b.plate.f_n;
+  if (x.rows() != y.rows() || x.cols() != y.cols() || x.rows() == 0) return false;
+  return ((x - y).array().abs() <= 1e-9 * (1.0 + x.array().abs())).all();
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return std::numeric_limits<double>::quiet_NaN();
+  std::sort(v.begin(), v.end());
+  const std::size_t m = v.size() / 2;
+  return v.size() % 2 ? v[m] : 0.5 * (v[m - 1] + v[m]);
+}
+
+// One recording under two trial ids (copied files, or a folder read twice):
+// the later ones rejected.
+void reject_duplicates(SessionState& state, ScreenResult& out) {
+  for (std::size_t i = 0; i < state.trials.size(); ++i) {
+    if (!state.trials[i].force || !state.trials[i].result.accepted) continue;
+    for (std::size_t j = 0; j < i; ++j) {
+      if (!state.trials[j].force || !same_record(*state.trials[i].force, *state.trials[j].force)) continue;
+      reject(state, i,
+             fmt::format("its force record is {}'s, sample for sample: one drop counted twice (two trials reading "
+                         "one recording)",
+                         state.trials[j].result.id),
+             out);
+      break;
+    }
+  }
+}
+
+// Each trial's impulse-momentum balance in the impactor's free flight
+// against the other trials' median: the plate's gain and the declared mass
+// are the session's, so they move every trial alike (the loop's
+// force_scale); one trial alone far off has a fault of its own.
+void reject_impulse_outliers(SessionState& state, const ScreenOptions& o, ScreenResult& out) {
+  const std::vector<PlateTrial> plates = plate_trials(state, 0.0);
+  struct Row {
+    std::size_t index;
+    double ratio, sd;
+  };
+  std::vector<Row> rows;
+  for (const PlateTrial& p : plates) {
+    const ImpulseBalance b = impulse_balance(p, PlateCorrection{}, state.impactor_mass_kg, state.gravity_m_s2);
+    if (!std::isfinite(b.ratio)) continue;
+    std::size_t index = 0;
+    while (index < state.trials.size() && state.trials[index].result.id != p.id) ++index;
+    const trial::TrialResult& r = state.trials[index].result;
+    // The ratio's own uncertainty: the mat's momentum left in the balance
+    // (its spread over the flight window) and the impact velocity's
+    // (95 % half-width / 1.96).
+    const double v_sd = std::isfinite(r.impact_velocity_ci_m_s) && r.impact_velocity_m_s > 0.0
+                            ? r.impact_velocity_ci_m_s / 1.96 / r.impact_velocity_m_s
+                            : 0.0;
+    rows.push_back({index, b.ratio, std::hypot(b.spread, v_sd)});
+  }
+  if (rows.size() < 3) {
+    out.notes.push_back(fmt::format("screen: impulse balance in free flight for {} trial(s); trials not compared",
+                                    rows.size()));
+    return;
+  }
+  std::vector<std::size_t> outliers;
+  for (std::size_t k = 0; k < rows.size(); ++k) {
+    std::vector<double> others;
+    for (std::size_t m = 0; m < rows.size(); ++m)
+      if (m != k) others.push_back(rows[m].ratio);
+    const double centre = median(others);
+    std::vector<double> dev;
+    for (double r : others) dev.push_back(std::abs(r - centre));
+    const double scatter = 1.4826 * median(dev);
+    const double tol = std::max(o.min_tolerance, o.sd_factor * std::hypot(rows[k].sd, scatter));
+    const double off = rows[k].ratio / centre - 1.0;
+    if (std::abs(off) > tol) {
+      outliers.push_back(k);
+      reject(state, rows[k].index,
+             fmt::format("impulse against momentum {:.3f} where the session's other trials give {:.3f} ({:+.1f} %, "
+                         "allowed +-{:.1f} % from this trial's mat momentum, its velocity interval and the others' "
+                         "scatter): a fault of this trial's own force or video record (a channel, a second impact, "
+                         "a wrong frame count), not the plate's gain or the declared mass, which all trials share",
+                         rows[k].ratio, centre, 100.0 * off, 100.0 * tol),
+             out);
+    }
+  }
+}
+
+}  // namespace
+
+ScreenResult screen_trials(SessionState& state, const ScreenOptions& options) {
+  ScreenResult out;
+  reject_duplicates(state, out);
+  reject_impulse_outliers(state, options, out);
+  return out;
+}
+
+}  // namespace dropfit::diagnosis
