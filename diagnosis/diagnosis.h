@@ -564,7 +564,7 @@ struct ScreenResult {
   std::vector<Rejection> rejected;
   std::vector<std::string> notes;
 };
-ScreenResult screen_trials(SessionState& state, const ScreenOptions& options = {});
+ScreenResult screen_trials(SessionData& state, const ScreenOptions& options = {});
 
 // The plate stage's trials from a state, on the force clock with the
 // declared clock relation shifted by offset_s (video minus force).

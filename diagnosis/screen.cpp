@@ -12,7 +12,7 @@
 namespace dropfit::diagnosis {
 namespace {
 
-void reject(SessionState& state, std::size_t i, const std::string& reason, ScreenResult& out) {
+void reject(SessionData& state, std::size_t i, const std::string& reason, ScreenResult& out) {
   trial::TrialResult& r = state.trials[i].result;
   r.accepted = false;
   r.reject_reason = r.reject_reason.empty() ? reason : r.reject_reason + "; " + reason;
@@ -36,7 +36,7 @@ double median(std::vector<double> v) {
 
 // One recording under two trial ids (copied files, or a folder read twice):
 // the later ones rejected.
-void reject_duplicates(SessionState& state, ScreenResult& out) {
+void reject_duplicates(SessionData& state, ScreenResult& out) {
   for (std::size_t i = 0; i < state.trials.size(); ++i) {
     if (!state.trials[i].force || !state.trials[i].result.accepted) continue;
     for (std::size_t j = 0; j < i; ++j) {
@@ -55,7 +55,7 @@ void reject_duplicates(SessionState& state, ScreenResult& out) {
 // against the other trials' median: the plate's gain and the declared mass
 // are the session's, so they move every trial alike (the loop's
 // force_scale); one trial alone far off has a fault of its own.
-void reject_impulse_outliers(SessionState& state, const ScreenOptions& o, ScreenResult& out) {
+void reject_impulse_outliers(SessionData& state, const ScreenOptions& o, ScreenResult& out) {
   const std::vector<PlateTrial> plates = plate_trials(state, 0.0);
   struct Row {
     std::size_t index;
@@ -107,7 +107,7 @@ void reject_impulse_outliers(SessionState& state, const ScreenOptions& o, Screen
 
 }  // namespace
 
-ScreenResult screen_trials(SessionState& state, const ScreenOptions& options) {
+ScreenResult screen_trials(SessionData& state, const ScreenOptions& options) {
   ScreenResult out;
   reject_duplicates(state, out);
   reject_impulse_outliers(state, options, out);

@@ -108,6 +108,11 @@ void analyse_trials(SessionState& state, double max_tilt_deg, const std::functio
     t.force = std::move(outcome.force);
     state.fit_data.push_back(fitting_trial(man, t.result));
   }
+  // Trials that cannot be measurements of the drops they claim (one
+  // recording under two ids, a free-flight impulse balance unlike the
+  // others') are rejected before anything is fitted.
+  const diagnosis::ScreenResult screen = diagnosis::screen_trials(state);
+  state.notes.insert(state.notes.end(), screen.notes.begin(), screen.notes.end());
   state.reached = Stage::Trials;
 }
 

@@ -94,6 +94,9 @@ forceplate::ProcessOptions force_options(const Manifest& manifest, const ForceRe
   options.pretrigger_fraction = manifest.forceplate.pretrigger_fraction;
   options.pretrigger_samples = record.pretrigger_samples > 0 ? record.pretrigger_samples : -1;
   options.sample_rate_hz = manifest.forceplate.sample_rate_hz;
+  // A declared amplifier low-pass: its group delay is the plate's, not the clock's.
+  options.lowpass_hz = manifest.forceplate.lowpass_hz;
+  options.lowpass_order = manifest.forceplate.lowpass_order;
   return options;
 }
 

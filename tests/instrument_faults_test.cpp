@@ -20,7 +20,8 @@
 #include <sstream>
 
 #include "capture/io.h"
-#include "cli/pipeline.h"
+#include "pipeline/pipeline.h"
+#include "pipeline/wiring.h"
 #include "core/error.h"
 #include "diagnosis/diagnosis.h"
 #include "samples/generator/synth.h"
@@ -39,7 +40,7 @@ Session lab_session(std::uint64_t seed, const std::function<void(synth::SynthOpt
 }
 
 struct Outcome {
-  diagnosis::SessionState state;
+  pipeline::SessionState state;
   diagnosis::ScreenResult screen;
   diagnosis::DiagnosisResult loop;
   int accepted() const {
@@ -58,7 +59,9 @@ struct Outcome {
 // stage only when asked: it refits every candidate).
 Outcome run(const Session& session, bool mat = false) {
   Outcome r;
-  r.state = pipeline::session_state(session);
+  // The pipeline screens the trials as it builds the state; a second screen
+  // finds nothing new and reports what the first rejected.
+  r.state = pipeline::build(session, {.upto = pipeline::Stage::Trials});
   r.screen = diagnosis::screen_trials(r.state);
   diagnosis::DiagnosisOptions o;
   o.mat = mat;
@@ -280,8 +283,8 @@ TEST(InstrumentFaults, TrialWithoutContactIsLeftOutOfEveryFit) {
   EXPECT_EQ(r.accepted(), 4) << r.reasons();
   EXPECT_TRUE(contains(r.state.trials[2].result.reject_reason, "no trigger")) << r.reasons();
   EXPECT_FALSE(r.state.fit_data[2].accepted);
-  const auto notes = pipeline::fit_models(r.state, s.manifest, {fitting::ModelKind::Model1, fitting::ModelKind::Model4});
-  EXPECT_EQ(r.state.fits.size(), 2u) << fmt::format("{}", fmt::join(notes, "\n"));
+  pipeline::fit_models(r.state, {fitting::ModelKind::Model1, fitting::ModelKind::Model4});
+  EXPECT_EQ(r.state.fits.size(), 2u) << fmt::format("{}", fmt::join(r.state.notes, "\n"));
   for (const auto& fit : r.state.fits)
     for (const auto& t : fit.trials) EXPECT_NE(t.id, "trial3");
 }
@@ -313,8 +316,7 @@ TEST(InstrumentFaults, ShuffledOrderWithoutSofteningNamesNoChange) {
 // Trial results with the force processed as the manifest declares it (the
 // pipeline passes [forceplate] lowpass_hz to forceplate::ProcessOptions).
 std::vector<double> offsets_ms(const Session& s, double lowpass_hz) {
-  const auto cal = pipeline::calibrate_session(s);
-  const auto cameras = pipeline::cameras_of(cal);
+  const auto cameras = pipeline::cameras_of(pipeline::choose_calibration(s).after);
   std::vector<double> out;
   for (const auto& t : s.trials) {
     auto po = pipeline::force_options(s.manifest, t.force);
@@ -391,8 +393,8 @@ TEST(InstrumentFaultsContinuum, C4SofteningIsNamed) {
 // undeclared the loop reads the clock offset less the filter's delay; with
 // the low-pass declared (the state rebuilt as the pipeline builds it from
 // [forceplate] lowpass_hz) the offset is the clock's.
-diagnosis::SessionState with_declared_lowpass(const Session& s, double lowpass_hz) {
-  diagnosis::SessionState state = pipeline::session_state(s);
+pipeline::SessionState with_declared_lowpass(const Session& s, double lowpass_hz) {
+  pipeline::SessionState state = pipeline::build(s, {.upto = pipeline::Stage::Trials});
   for (std::size_t i = 0; i < s.trials.size(); ++i) {
     auto po = pipeline::force_options(s.manifest, s.trials[i].force);
     po.lowpass_hz = lowpass_hz;
@@ -409,7 +411,7 @@ TEST(InstrumentFaultsContinuum, C5ClockOffsetIsTheClocksOnceTheLowPassIsDeclared
   if (!have_continuum("c5-lowpass-offset")) GTEST_SKIP() << "../shared absent";
   const Session s = capture::read_session(continuum("c5-lowpass-offset"));
   const double delay_ms = 1e3 * forceplate::butterworth_delay_s(520.0, 2);
-  const diagnosis::DiagnosisResult undeclared = diagnosis::diagnose(pipeline::session_state(s));
+  const diagnosis::DiagnosisResult undeclared = diagnosis::diagnose(pipeline::build(s, {.upto = pipeline::Stage::Trials}));
   const diagnosis::DiagnosisResult declared = diagnosis::diagnose(with_declared_lowpass(s, 520.0));
   if (std::getenv("DROPFIT_SHOW")) std::cerr << undeclared.report() << declared.report();
   const diagnosis::Effect* u = effect(undeclared, "time_offset");
