@@ -118,7 +118,7 @@ trial::TrialOptions trial_options(const Manifest& manifest, const std::string& t
 forceplate::ProcessOptions force_options(const Manifest& manifest, const ForceRecord& record) {
   forceplate::ProcessOptions options;
   options.trigger_threshold_n = manifest.forceplate.trigger_threshold_n;
-  options.pretrigger_fraction = manifest.forceplate.pretrigger_fraction;
+  options.pretrigger_fraction = manifest.forceplate.pretrigger_fraction.value_or(options.pretrigger_fraction);
   options.pretrigger_samples = record.pretrigger_samples > 0 ? record.pretrigger_samples : -1;
   options.sample_rate_hz = manifest.forceplate.sample_rate_hz;
   return options;
@@ -134,6 +134,14 @@ forceplate::Resultants raw_resultants(const Manifest& manifest, const ForceRecor
   return forceplate::from_resultant_columns(record.t_s, record.data, 50.0, g[2]);
 }
 
+report::TrialSource trial_source(const ForceRecord& record, const std::optional<forceplate::ForceTrial>& force) {
+  report::TrialSource source;
+  source.trigger = record.trigger;
+  source.trigger_from_data = record.trigger_from_data;
+  if (force) source.cop_unavailable = force->cop_unavailable;
+  return source;
+}
+
 TrialOutcome process_trial(const Manifest& manifest, const TrialRecording& trial,
                            const std::vector<calibration::Camera>& cameras, double max_tilt_deg) {
   TrialOutcome outcome;
@@ -147,15 +155,17 @@ TrialOutcome process_trial(const Manifest& manifest, const TrialRecording& trial
     outcome.force = forceplate::process(raw_resultants(manifest, trial.force), force_options(manifest, trial.force));
   } catch (const Error& e) {
     outcome.result = trial::analyse_without_force(outcome.trajectories, options, e.what());
+    outcome.source = trial_source(trial.force, outcome.force);
     return outcome;
   }
+  outcome.source = trial_source(trial.force, outcome.force);
   outcome.result = trial::analyse(*outcome.force, outcome.trajectories, options);
   return outcome;
 }
 
 void add_trial_outputs(report::OutputSet& out, const TrialOutcome& outcome) {
   const std::string dir = "trials/" + outcome.result.id + "/";
-  out.add(dir + "trial.json", report::trial_json(outcome.result));
+  out.add(dir + "trial.json", report::trial_json(outcome.result, &outcome.source));
   out.add(dir + "series.csv", report::series_csv(outcome.result.series));
   add_reconstruction_outputs(out, outcome.result.id, outcome.trajectories, outcome.options.point_names);
   // OpenSim: markers with frame i at its force-clock time (the nominal video
@@ -453,7 +463,10 @@ RunSummary run_session(const std::string& session_dir, const RunOptions& options
   for (size_t i = 0; i < results.size(); ++i) {
     trial::TrialResult& r = results[i];
     if (sync_fit) apply_fitted_offset(r, *sync_fit);
-    add_trial_outputs(out, {state.trials[i].trajectories, r, trial_options(session.manifest, r.id), state.trials[i].force});
+    const report::TrialSource source = trial_source(session.trials[i].force, state.trials[i].force);
+    add_trial_outputs(out, {state.trials[i].trajectories, r, trial_options(session.manifest, r.id),
+                            state.trials[i].force, source});
+    for (const auto& note : report::trial_source_notes(r.id, source)) summary.notes.push_back(note);
   }
   out.add("summary.csv", report::summary_csv(results));
   rep.trials = results;

@@ -17,6 +17,7 @@
 #include "report/export.h"
 #include "core/progress.h"
 #include "report/output.h"
+#include "report/results.h"
 #include "report/session_report.h"
 #include "trial/trial.h"
 
@@ -56,7 +57,11 @@ struct TrialOutcome {
   trial::TrialResult result;
   trial::TrialOptions options;                 // what the trial was analysed with (names, clocks)
   std::optional<forceplate::ForceTrial> force;  // the zeroed plate record, when it could be processed
+  report::TrialSource source;                   // how the force record's trigger was found; its centre of pressure
 };
+// The trial.json source of a trial: its force record's trigger and, from
+// the processed record, why there is no centre of pressure.
+report::TrialSource trial_source(const ForceRecord& record, const std::optional<forceplate::ForceTrial>& force);
 trial::TrialOptions trial_options(const Manifest& manifest, const std::string& trial_id);
 forceplate::ProcessOptions force_options(const Manifest& manifest, const ForceRecord& record);
 forceplate::Resultants raw_resultants(const Manifest& manifest, const ForceRecord& record);
