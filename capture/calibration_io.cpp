@@ -31,6 +31,13 @@ std::vector<CalibrationMarker> read_frame_csv(const std::string& path) {
     if (blank_line(l.text)) continue;
     const std::vector<Field> f = split_fields(l.text, ',', header.size());
     if (f.size() != header.size()) row_length_error(path, l, f, header, lines[0].number);
+    if (out.size() == kMaxCalibrationMarkers)
+      throw InputError(path, l.number, 1, "id",
+                       fmt::format("more than {} calibration markers: the calibration's leave-one-out checks refit "
+                                   "the cameras once per marker and more (the time grows as N^2.5: 1,000 markers take "
+                                   "minutes); a calibration structure needs 20 to 100 (a wand's thousands of points "
+                                   "belong in [calibration] dlt_coefficients, from easyWand)",
+                                   kMaxCalibrationMarkers));
     CalibrationMarker m;
     const Field& id = f[col.at("id")];
     m.id = id.text;
@@ -43,7 +50,8 @@ std::vector<CalibrationMarker> read_frame_csv(const std::string& path) {
                        fmt::format("duplicate id '{}' (first on line {})", m.id, it->second));
     for (int k = 0; k < 3; ++k) {
       const char* name = k == 0 ? "x_m" : k == 1 ? "y_m" : "z_m";
-      m.lab_m[k] = parse_number(path, l.number, f[col.at(name)], name, false);
+      m.lab_m[k] = parse_bounded(path, l.number, f[col.at(name)], name, false, kMaxLabCoordinateM,
+                                 "a lab position in metres");
     }
     const Field& role = f[col.at("role")];
     if (role.text == "fit")
@@ -86,8 +94,8 @@ CalibrationImage read_camera_csv(const std::string& path, const std::string& cam
     if (const auto [it, inserted] = seen.emplace(obs.id, l.number); !inserted)
       throw InputError(path, l.number, id.column, "id",
                        fmt::format("duplicate id '{}' (first on line {})", obs.id, it->second));
-    obs.image_px.x() = parse_number(path, l.number, f[col.at("u_px")], "u_px", false);
-    obs.image_px.y() = parse_number(path, l.number, f[col.at("v_px")], "v_px", false);
+    obs.image_px.x() = parse_bounded(path, l.number, f[col.at("u_px")], "u_px", false, kMaxPixel, "an image coordinate");
+    obs.image_px.y() = parse_bounded(path, l.number, f[col.at("v_px")], "v_px", false, kMaxPixel, "an image coordinate");
     image.observations.push_back(obs);
   }
   return image;

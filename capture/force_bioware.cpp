@@ -353,10 +353,9 @@ ForceRecord read_bioware(const std::string& path, const std::vector<Line>& lines
   ForceRecord rec;
   rec.layout = ForceLayout::Resultants;
   rec.sample_rate_hz = ex.sample_rate_hz;
-  const int n = static_cast<int>(ex.abs_time_s.size());
-  rec.pretrigger_samples = std::min(trigger_sample_from_fraction(plate.pretrigger_fraction, n), n - 1);
-  rec.t_s = ex.abs_time_s.array() - ex.abs_time_s[rec.pretrigger_samples];
   rec.data = std::move(ex.plates[plate.plate - 1]);
+  set_trigger(rec, plate, path);
+  rec.t_s = ex.abs_time_s.array() - ex.abs_time_s[rec.pretrigger_samples];
   return rec;
 }
 

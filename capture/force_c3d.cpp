@@ -130,10 +130,10 @@ ForceRecord force_record_from_c3d(const C3dFile& f, const ForcePlateSpec& spec) 
 
   ForceRecord rec;
   rec.sample_rate_hz = rate;
-  rec.pretrigger_samples = std::min(trigger_sample_from_fraction(spec.pretrigger_fraction, static_cast<int>(n)),
-                                    static_cast<int>(n) - 1);
-  rec.t_s = (Eigen::VectorXd::LinSpaced(n, 0.0, static_cast<double>(n - 1)).array() - rec.pretrigger_samples) / rate;
-  rec.trigger = fmt::format("C3D {}: trigger sample from forceplate.pretrigger_fraction", f.path);
+  const auto set_times = [&] {
+    detail::set_trigger(rec, spec, f.path);
+    rec.t_s = (Eigen::VectorXd::LinSpaced(n, 0.0, static_cast<double>(n - 1)).array() - rec.pretrigger_samples) / rate;
+  };
   if (type == 3.0) {
     for (int c = 0; c < 8; ++c) data.col(c) *= analog_unit_si(f, channels[c], false);
     rec.layout = ForceLayout::EightChannel;
@@ -158,6 +158,7 @@ ForceRecord force_record_from_c3d(const C3dFile& f, const ForcePlateSpec& spec) 
     rec.data.rightCols(2).setConstant(kNaN);
     rec.plate_geometry_m = Eigen::Vector3d(kNaN, kNaN, -std::abs(origin[2]));
   }
+  set_times();
   return rec;
 }
 
@@ -194,22 +195,6 @@ MarkerTrajectories markers_from_c3d(const C3dFile& f, const std::vector<std::str
 
 MarkerTrajectories read_markers_c3d(const std::string& path, const std::vector<std::string>& points) {
   return markers_from_c3d(read_c3d(path), points);
-}
-
-std::string find_force_file(const std::string& trial_dir) {
-  namespace fs = std::filesystem;
-  const fs::path dir(trial_dir);
-  std::error_code ec;
-  const fs::path txt = dir / "force.txt";
-  std::optional<fs::path> c3d;
-  for (const char* name : {"force.c3d", "force.C3D"})
-    if (fs::exists(dir / name, ec) && !c3d) c3d = dir / name;
-  if (fs::exists(txt, ec) && c3d)
-    throw InputError(trial_dir, 0, 0, "force.txt",
-                     fmt::format("the trial folder holds both force.txt and {}: remove the one not meant",
-                                 c3d->filename().string()));
-  if (c3d) return c3d->string();
-  return txt.string();
 }
 
 }  // namespace dropfit::capture

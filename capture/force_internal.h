@@ -23,6 +23,13 @@ inline constexpr std::size_t kMaxForceTextBytes = std::size_t{512} << 20;
 // name the file (and the line of a bad UTF-16 sequence).
 std::vector<Line> read_text_lines(const std::string& path);
 
+// The trigger of an export that carries none (BioWare text, C3D), from
+// rec.data (its layout set): pretrigger_samples and the `trigger` text,
+// from plate.pretrigger_fraction when the manifest gives it, else from the
+// data (trigger_sample_from_data), which an InputError naming `path`
+// reports when it finds no crossing.
+void set_trigger(ForceRecord& rec, const ForcePlateSpec& plate, const std::string& path);
+
 // The two text layouts, from the lines and the index of the column header.
 ForceRecord read_eight_channel(const std::string& path, const std::vector<Line>& lines, std::size_t header,
                                const ForcePlateSpec& plate);

@@ -64,8 +64,9 @@ BioWareExport read_bioware_export(const std::string& path);
 // given, must be N (or kN) for forces and N.m or N.mm for moments.
 // `plate.plate` (1-based) picks the plate. The analog rate must equal
 // plate.sample_rate_hz (relative 1e-6). The C3D has no trigger mark: as for
-// BioWare, pretrigger_samples = trigger_sample_from_fraction(
-// plate.pretrigger_fraction, n) and t_s = 0 at that sample.
+// BioWare, the trigger sample comes from plate.pretrigger_fraction when
+// given, else from the record's data (trigger_sample_from_data in
+// capture/io.h), and t_s = 0 at that sample.
 ForceRecord force_record_from_c3d(const C3dFile& file, const ForcePlateSpec& plate);
 ForceRecord read_force_c3d(const std::string& path, const ForcePlateSpec& plate);
 
@@ -84,10 +85,19 @@ struct MarkerTrajectories {
 MarkerTrajectories markers_from_c3d(const C3dFile& file, const std::vector<std::string>& points);
 MarkerTrajectories read_markers_c3d(const std::string& path, const std::vector<std::string>& points);
 
-// The force file of a trial folder: <dir>/force.txt, else <dir>/force.c3d
-// (also .C3D), else <dir>/force.txt (reported missing when read). Both a
-// force.txt and a force.c3d: an InputError naming the folder (which one is
-// meant is not known).
+// What a file holds, judged from its first 64 KiB: a C3D with analog data
+// (the key byte 0x50 and a non-zero analog count), a Kistler eight-channel
+// text export (a column header "Time(s)"), a BioWare text export (a column
+// header beginning "abs time"; UTF-16 too), or none of them.
+enum class ForceFileKind { None, C3d, KistlerText, BioWareText };
+ForceFileKind force_file_kind(const std::string& path);
+
+// The force file of a trial folder: force.txt or force.c3d (the extension in
+// any case, e.g. force.C3D); else the one .txt, .tsv or .c3d file (any case)
+// whose content is a force export (force_file_kind), as BioWare names them
+// (kistler_DJ_2plates.txt, trial3.C3D); else <dir>/force.txt (reported
+// missing when read). Two contract names, or no contract name and two force
+// exports: an InputError naming both (which one is meant is not known).
 std::string find_force_file(const std::string& trial_dir);
 
 }  // namespace dropfit::capture

@@ -14,7 +14,9 @@
 //   around it allowed): "1.2x", "1,2" or an empty field where a number is
 //   required is an error. Infinite values are always errors.
 // - Nothing is ever written by a reader.
+#include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "core/session.h"
@@ -27,10 +29,12 @@ namespace dropfit::capture {
 //   mat.{length_m, width_m, surface_markers, layers (at least one; each with
 //   name, thickness_m, mass_kg)}, video.{cameras, frame_rate_hz, points,
 //   trigger_frame}, forceplate.{sample_rate_hz, trigger_threshold_n,
-//   pretrigger_fraction, a_m, b_m, az0_m, mat_top_z_m}, and at least one
+//   a_m, b_m, az0_m, mat_top_z_m}, and at least one
 //   [[trial]] with id and dir.
 // Optional (default): session.name (""), session.gravity_m_s2 (9.81),
-//   impactor.base_marker_height_m (0), forceplate.model (""), forceplate.plate
+//   impactor.base_marker_height_m (0), forceplate.model (""),
+//   forceplate.pretrigger_fraction (absent: exports without a trigger are
+//   aligned by their own data), forceplate.plate
 //   (1: the plate of a several-plate BioWare or C3D export, an integer >= 1),
 //   video.image_origin ("top-left"), video.image_height_px (required with
 //   "bottom-left").
@@ -67,8 +71,21 @@ namespace dropfit::capture {
 // (counted in characters, as toml++ does).
 Manifest read_manifest(const std::string& path);
 
+// Why a trial id or folder cannot be used, or "" when it can. The id names
+// the trial's output folder (trials/ID/ in the results), so it must be a
+// plain file name: at most 128 characters, no control characters (NUL
+// included), no '/' or '\\', not "." or "..". The folder is relative to the
+// session and stays inside it: no ".." component that leaves it, no control
+// characters, at most 1024 characters. read_manifest applies both;
+// read_session also refuses a trial folder that resolves (through symbolic
+// links) outside the session folder.
+std::string trial_id_problem(std::string_view id);
+std::string trial_dir_problem(std::string_view dir);
+
 // calibration/frame.csv: header id,x_m,y_m,z_m,role (any order, no other
-// columns), ids unique and non-empty, role "fit" or "check", at least one row.
+// columns), ids unique and non-empty, role "fit" or "check", at least one
+// row and at most 500 (the 501st is refused at its line: the calibration's
+// leave-one-out refits grow as N^2.5); coordinates within +-1e4 m.
 std::vector<CalibrationMarker> read_frame_csv(const std::string& path);
 // calibration/<camera>.csv: header id,u_px,v_px (any order). Checks every id
 // against `frame` (an id not in frame.csv is an error naming it) and rejects
@@ -98,12 +115,15 @@ std::string find_xypts(const std::string& trial_dir);
 // DLTdv's offsets file beside a marker table: its path with the trailing
 // "xypts.csv" replaced by "offsets.csv".
 std::string offsets_path(const std::string& xypts_path);
-// offsets.csv: one integer frame offset per camera, either one row per
-// camera (one field each) or DLTdv 8's one column per camera and one row per
-// frame (then every row must be the same: offsets that change during a
-// trial are refused); an optional header line. Offsets beyond +-1e6 frames
-// are refused.
-std::vector<int> read_offsets(const std::string& path, int n_cameras);
+// offsets.csv as DLTdv writes it: a header (cam1_offset,cam2_offset,...),
+// then one row per frame and one column per camera, whole frames printed
+// %.6f ("-3.000000"); the offsets may change along the trial. The contract's
+// short form, one row per camera with one field each (more than one camera),
+// is read as constant offsets. Numbers are parsed as decimals and must be
+// whole frames within +-1e6; a header line is optional. DLTdv stores its
+// rows already aligned, so the offsets only say which video frame each row
+// came from (FrameOffsets in core/session.h).
+FrameOffsets read_offsets(const std::string& path, int n_cameras);
 
 // xypts.csv in any of the three layouts, told apart by the header:
 //   DLTdv 8.3   ptK_camN_X, ptK_camN_Y   (K 1-based index into video.points)
@@ -147,15 +167,35 @@ MarkerTracks2D read_xypts(const std::string& path, const VideoSpec& video);
 //   (no Fz: refused), several plates as repeated blocks (plate.plate picks
 //   one), header lines of any BioWare version. Columns the export lacks are
 //   NaN throughout in `data`. The file has no trigger mark, so the trigger
-//   sample is taken from the manifest:
-//   pretrigger_samples = trigger_sample_from_fraction(plate.pretrigger_fraction, n)
-//   and t_s[i] = abs_time[i] - abs_time[pretrigger_samples], i.e. t = 0 at
-//   the trigger sample as for the eight-channel layout. Ax, Ay may be NaN
+//   sample is taken from the manifest when it gives one,
+//   pretrigger_samples = trigger_sample_from_fraction(plate.pretrigger_fraction, n),
+//   else found in the record's own data (trigger_sample_from_data with
+//   plate.trigger_threshold_n; trigger_from_data set, `trigger` says which
+//   sample and how), and t_s[i] = abs_time[i] - abs_time[pretrigger_samples],
+//   i.e. t = 0 at the trigger sample as for the eight-channel layout. Ax, Ay may be NaN
 //   (centre of pressure undefined while unloaded).
 // For all: the sample rate must equal plate.sample_rate_hz (relative 1e-6);
 // time steps must be uniform (each step within a quarter sample plus the
 // printed time resolution of 1 / rate, and no drift over the record).
 ForceRecord read_force(const std::string& path, const ForcePlateSpec& plate);
+
+// The trigger sample of a record that carries none, found in its data as
+// the acquisition would have triggered: the first sample at which Fz stands
+// more than `threshold_n` above the quiet level before it. A window is quiet
+// when its 50 samples lie well below the record's largest Fz and spread no
+// more than twice the quietest window's (at least 1 N). When the record
+// starts quiet, the level is its first window's median and the trigger the
+// first crossing after it (a drop jump's first landing, not its larger
+// second one); when it starts loaded or swaying, the level is that of the
+// last quiet window before the largest Fz and the trigger the crossing after
+// it (quiet before impact). Fz is the record's (eight channels: Fz1 + Fz2 +
+// Fz3 + Fz4). nullopt when Fz never rises that far above a quiet level (no
+// impact in the record).
+struct DataTrigger {
+  int sample = 0;            // 0-based
+  double quiet_level_n = 0;  // the quiet Fz the crossing is measured from
+};
+std::optional<DataTrigger> trigger_sample_from_data(const ForceRecord& record, double threshold_n);
 
 // Index of the trigger sample in a record of n samples of which a share
 // `pretrigger_fraction` precedes it: round(fraction * n) (halves away from 0).
@@ -168,8 +208,15 @@ int trigger_sample_from_fraction(double pretrigger_fraction, int n_samples);
 // Session::dlt_coefficients and frame.csv is optional (absent: no frame, no
 // images); with frame.csv present a camera without its <camera>.csv saw
 // none of the markers. DLTdv's offsets.csv beside a marker table is read
-// into TrialRecording::frame_offsets. A missing file is an InputError naming it.
-// Reads only; never writes.
+// into TrialRecording::frame_offsets (a per-frame file must have the marker
+// table's number of rows). A trial folder holding markers.c3d (any case)
+// instead of a marker table brings its own 3-D markers (read_markers_c3d for
+// [video].points, at video.frame_rate_hz, trigger_frame a frame of it) into
+// TrialRecording::markers_xyz_m; a folder with both is refused. When every
+// trial has markers.c3d and the session has neither calibration/frame.csv
+// nor [calibration] dlt_coefficients, no calibration is read. A trial folder
+// resolving outside the session folder is refused. A missing file is an
+// InputError naming it. Reads only; never writes.
 Session read_session(const std::string& root);
 // The calibration part of read_session alone: fills session.frame, .images
 // and .dlt_coefficients from the folder `root` for session.manifest.

@@ -367,7 +367,7 @@ class ManifestReader {
     m.forceplate.model = string(plate, "forceplate", "model", false).value_or("");
     m.forceplate.sample_rate_hz = *number(plate, "forceplate", "sample_rate_hz", Check::Positive, true);
     m.forceplate.trigger_threshold_n = *number(plate, "forceplate", "trigger_threshold_n", Check::Positive, true);
-    m.forceplate.pretrigger_fraction = *number(plate, "forceplate", "pretrigger_fraction", Check::Fraction, true);
+    m.forceplate.pretrigger_fraction = number(plate, "forceplate", "pretrigger_fraction", Check::Fraction, false);
     m.forceplate.a_m = *number(plate, "forceplate", "a_m", Check::Positive, true);
     m.forceplate.b_m = *number(plate, "forceplate", "b_m", Check::Positive, true);
     m.forceplate.az0_m = *number(plate, "forceplate", "az0_m", Check::Finite, true);
@@ -400,9 +400,8 @@ class ManifestReader {
       spec.dir = *string(t, prefix, "dir", true);
       if (spec.id.empty()) fail(*t.get("id"), prefix + ".id", "empty trial id");
       if (spec.dir.empty()) fail(*t.get("dir"), prefix + ".dir", "empty trial dir");
-      if (fs::path(spec.dir).is_absolute())
-        fail(*t.get("dir"), prefix + ".dir",
-             fmt::format("\"{}\" is absolute; trial dirs are relative to the session folder", spec.dir));
+      if (const std::string why = trial_id_problem(spec.id); !why.empty()) fail(*t.get("id"), prefix + ".id", why);
+      if (const std::string why = trial_dir_problem(spec.dir); !why.empty()) fail(*t.get("dir"), prefix + ".dir", why);
       const auto [it, inserted] = seen.emplace(spec.id, i);
       if (!inserted)
         fail(*t.get("id"), prefix + ".id",
@@ -705,11 +704,11 @@ void write_manifest(const std::string& path, const Manifest& m) {
   if (m.video.image_height_px) fmt::format_to(out, "image_height_px = {}\n", toml_float(*m.video.image_height_px));
   const ForcePlateSpec& p = m.forceplate;
   fmt::format_to(out,
-                 "\n[forceplate]\nmodel = {}\nsample_rate_hz = {}\ntrigger_threshold_n = {}\npretrigger_fraction = {}\n"
+                 "\n[forceplate]\nmodel = {}\nsample_rate_hz = {}\ntrigger_threshold_n = {}\n{}"
                  "a_m = {}\nb_m = {}\naz0_m = {}\nmat_top_z_m = {}\n",
                  toml_string(p.model), toml_float(p.sample_rate_hz), toml_float(p.trigger_threshold_n),
-                 toml_float(p.pretrigger_fraction), toml_float(p.a_m), toml_float(p.b_m), toml_float(p.az0_m),
-                 toml_float(p.mat_top_z_m));
+                 p.pretrigger_fraction ? "pretrigger_fraction = " + toml_float(*p.pretrigger_fraction) + "\n" : "",
+                 toml_float(p.a_m), toml_float(p.b_m), toml_float(p.az0_m), toml_float(p.mat_top_z_m));
   if (p.plate != 1) fmt::format_to(out, "plate = {}\n", p.plate);
   if (p.lowpass_hz > 0.0) fmt::format_to(out, "lowpass_hz = {}\nlowpass_order = {}\n", toml_float(p.lowpass_hz), p.lowpass_order);
   if (!m.calibration.dlt_coefficients.empty())

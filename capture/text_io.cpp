@@ -231,6 +231,15 @@ double parse_number(const std::string& file, int line, const Field& f, const std
   return value;
 }
 
+double parse_bounded(const std::string& file, int line, const Field& f, const std::string& field, bool nan_ok,
+                     double limit, const char* what) {
+  const double v = parse_number(file, line, f, field, nan_ok);
+  if (std::abs(v) > limit)
+    throw InputError(file, line, f.column, field,
+                     fmt::format("'{}' is beyond +-{:g}, out of range for {}", f.text, limit, what));
+  return v;
+}
+
 long long parse_integer(const std::string& file, int line, const Field& f, const std::string& field) {
   const std::string& s = f.text;
   if (s.empty()) throw InputError(file, line, f.column, field, "empty field, expected an integer");

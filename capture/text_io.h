@@ -33,6 +33,9 @@ inline constexpr std::uintmax_t kMaxFileBytes = 2ull << 30;  // 2 GiB
 inline constexpr std::size_t kMaxNameChars = 256;
 inline constexpr std::size_t kMaxPoints = 1000;
 inline constexpr std::size_t kMaxCameras = 16;
+// Most markers in calibration/frame.csv (the calibration's cross-validation
+// refits grow faster than N^2 with them).
+inline constexpr std::size_t kMaxCalibrationMarkers = 500;
 
 bool is_blank(char c);
 bool blank_line(std::string_view s);
@@ -56,6 +59,15 @@ void drop_trailing_empty(std::vector<Field>& fields);
 bool iequals_prefix(std::string_view s, std::string_view prefix);
 bool iequals(std::string_view a, std::string_view b);
 double parse_number(const std::string& file, int line, const Field& f, const std::string& field, bool nan_ok);
+// parse_number, then |value| <= limit (NaN passes when nan_ok): a value
+// beyond it is refused naming `what` ("a lab position in metres") so that
+// numbers like 1e308 fail where they are written, not later as a degenerate
+// geometry.
+double parse_bounded(const std::string& file, int line, const Field& f, const std::string& field, bool nan_ok,
+                     double limit, const char* what);
+// Largest magnitudes accepted: lab coordinates (m) and image coordinates (px).
+inline constexpr double kMaxLabCoordinateM = 1e4;
+inline constexpr double kMaxPixel = 1e6;
 long long parse_integer(const std::string& file, int line, const Field& f, const std::string& field);
 double printed_resolution(std::string_view s);
 [[noreturn]] void row_length_error(const std::string& file, const Line& line, const std::vector<Field>& fields,
@@ -67,6 +79,22 @@ double rounding_slack(double period, double ra, double rb);
 void check_uniform_time(const std::string& file, const std::vector<double>& t, const std::vector<double>& resolution,
                         const std::vector<int>& lines, const std::vector<int>& columns, const std::string& field,
                         double rate_hz);
+
+// One xypts column name taken apart, without regular expressions (a
+// backtracking regex on a long header field overflowed the stack):
+//   NAME_camN_X / _Y   layout 0 (DLTdv 8.3; NAME is ptK there)
+//   NAME_camN_U / _V   layout 1 (DLTdv 8.4 and later)
+//   NAME_cam_N_x / _y  layout 2 (Argus)
+// N is one or more digits; NAME is non-empty. nullopt when none fits.
+struct ColumnName {
+  int layout = 0;
+  std::string point;
+  std::string camera_text;
+  long long camera = 0;  // 0 when camera_text has more than 9 digits
+  int axis = 0;          // 0 u, 1 v
+};
+
+std::optional<ColumnName> parse_column_name(std::string_view s);
 
 void write_whole(const std::string& path, const std::string& content);
 std::string csv_field(const std::string& s);

@@ -31,20 +31,25 @@ std::string xypts_column(XyptsLayout layout, int point, const std::string& name,
 }
 
 
-// One xypts column name taken apart, without regular expressions (a
-// backtracking regex on a long header field overflowed the stack):
-//   NAME_camN_X / _Y   layout 0 (DLTdv 8.3; NAME is ptK there)
-//   NAME_camN_U / _V   layout 1 (DLTdv 8.4 and later)
-//   NAME_cam_N_x / _y  layout 2 (Argus)
-// N is one or more digits; NAME is non-empty. nullopt when none fits.
-struct ColumnName {
-  int layout = 0;
-  std::string point;
-  std::string camera_text;
-  long long camera = 0;  // 0 when camera_text has more than 9 digits
-  int axis = 0;          // 0 u, 1 v
-};
+// K of a default point name "ptK" (K digits only), nullopt otherwise; K
+// with more than 9 digits reads as 0 (out of range).
+std::optional<long long> default_point_number(std::string_view name) {
+  if (name.size() < 3 || name.substr(0, 2) != "pt") return std::nullopt;
+  const std::string_view k = name.substr(2);
+  if (!std::all_of(k.begin(), k.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); }))
+    return std::nullopt;
+  return k.size() > 9 ? 0 : std::stoll(std::string(k));
+}
 
+
+// A name as quoted in a message: at most 80 characters.
+std::string shorten(std::string_view s) {
+  return s.size() <= 80 ? std::string(s) : fmt::format("{}... ({} characters)", s.substr(0, 60), s.size());
+}
+
+}  // namespace
+
+namespace detail {
 std::optional<ColumnName> parse_column_name(std::string_view s) {
   if (s.size() < 2 || s[s.size() - 2] != '_') return std::nullopt;
   ColumnName out;
@@ -73,23 +78,7 @@ std::optional<ColumnName> parse_column_name(std::string_view s) {
   return out;
 }
 
-// K of a default point name "ptK" (K digits only), nullopt otherwise; K
-// with more than 9 digits reads as 0 (out of range).
-std::optional<long long> default_point_number(std::string_view name) {
-  if (name.size() < 3 || name.substr(0, 2) != "pt") return std::nullopt;
-  const std::string_view k = name.substr(2);
-  if (!std::all_of(k.begin(), k.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); }))
-    return std::nullopt;
-  return k.size() > 9 ? 0 : std::stoll(std::string(k));
-}
-
-
-// A name as quoted in a message: at most 80 characters.
-std::string shorten(std::string_view s) {
-  return s.size() <= 80 ? std::string(s) : fmt::format("{}... ({} characters)", s.substr(0, 60), s.size());
-}
-
-}  // namespace
+}  // namespace detail
 
 MarkerTracks2D read_xypts(const std::string& path, const VideoSpec& video) {
   if (video.image_origin == ImageOrigin::BottomLeft && !(video.image_height_px && *video.image_height_px > 0.0))
@@ -194,7 +183,7 @@ MarkerTracks2D read_xypts(const std::string& path, const VideoSpec& video) {
     // its columns stay NaN.
     std::fill(row.begin(), row.end(), kNaN);
     for (std::size_t j = 0; j < f.size(); ++j) {
-      double v = parse_number(path, l.number, f[j], header[j].text, true);
+      double v = parse_bounded(path, l.number, f[j], header[j].text, true, kMaxPixel, "an image coordinate");
       if (flip && (target[j] % 2) == 1) v = height - v;
       row[target[j]] = v;
     }
@@ -269,59 +258,56 @@ std::string offsets_path(const std::string& xypts_path) {
   return p;
 }
 
-std::vector<int> read_offsets(const std::string& path, int n_cameras) {
+FrameOffsets read_offsets(const std::string& path, int n_cameras) {
   const std::vector<Line> lines = read_lines(path);
   std::vector<std::vector<Field>> rows;
   std::vector<int> row_lines;
-  for (std::size_t i = 0; i < lines.size(); ++i) {
-    const Line& l = lines[i];
+  bool header_seen = false;
+  for (const Line& l : lines) {
     if (blank_line(l.text)) continue;
     std::vector<Field> f = split_fields(l.text, separator_of(l.text), static_cast<std::size_t>(n_cameras) + 1);
     drop_trailing_empty(f);
-    // A header line (DLTdv: cam1_offset,...; or any words) is skipped.
-    if (rows.empty() && row_lines.empty() && !f.empty() && !f[0].text.empty() &&
-        !std::isdigit(static_cast<unsigned char>(f[0].text[0])) && f[0].text[0] != '-' && f[0].text[0] != '+') {
-      row_lines.push_back(-l.number);
+    // A header line (DLTdv: cam1_offset,cam2_offset; or any words) is skipped.
+    const bool words = !f.empty() && !f[0].text.empty() && !std::isdigit(static_cast<unsigned char>(f[0].text[0])) &&
+                       f[0].text[0] != '-' && f[0].text[0] != '+' && f[0].text[0] != '.';
+    if (rows.empty() && !header_seen && words) {
+      header_seen = true;
       continue;
     }
     rows.push_back(std::move(f));
     row_lines.push_back(l.number);
   }
-  if (!row_lines.empty() && row_lines[0] < 0) row_lines.erase(row_lines.begin());
-  auto integer_of = [&](const Field& f, int line, const std::string& field) {
-    const long long v = parse_integer(path, line, f, field);
-    if (v < -1000000 || v > 1000000)
-      throw InputError(path, line, f.column, field, fmt::format("frame offset {} is beyond +-1000000 frames", v));
-    return static_cast<int>(v);
+  // DLTdv writes whole frames as %.6f ("-3.000000"); a fraction of a frame
+  // cannot name the video frame a row came from.
+  auto frames_of = [&](const Field& f, int line, const std::string& field) {
+    const double v = parse_number(path, line, f, field, false);
+    if (std::abs(v) > 1e6)
+      throw InputError(path, line, f.column, field, fmt::format("frame offset {} is beyond +-1000000 frames", f.text));
+    if (std::abs(v - std::round(v)) > 1e-6)
+      throw InputError(path, line, f.column, field,
+                       fmt::format("'{}' is not a whole number of frames (a frame offset names a video frame)", f.text));
+    return static_cast<int>(std::lround(v));
   };
-  std::vector<int> out;
-  if (rows.empty()) throw InputError(path, 0, 0, "", "no offsets: expected one row per camera");
-  if (static_cast<int>(rows.size()) == n_cameras && std::all_of(rows.begin(), rows.end(), [](const auto& r) {
-        return r.size() == 1;
-      })) {
-    // The contract's form: one row per camera.
-    for (std::size_t c = 0; c < rows.size(); ++c)
-      out.push_back(integer_of(rows[c][0], row_lines[c], fmt::format("cam{}", c + 1)));
+  if (rows.empty()) throw InputError(path, 0, 0, "", "no offsets: expected one row per camera or per frame");
+  FrameOffsets out;
+  if (n_cameras > 1 && static_cast<int>(rows.size()) == n_cameras &&
+      std::all_of(rows.begin(), rows.end(), [](const auto& r) { return r.size() == 1; })) {
+    // One row per camera: constant offsets.
+    out.frames.resize(1, n_cameras);
+    for (int c = 0; c < n_cameras; ++c) out.frames(0, c) = frames_of(rows[c][0], row_lines[c], fmt::format("cam{}", c + 1));
     return out;
   }
-  // DLTdv 8's form: one column per camera, one row per frame; only constant
-  // offsets are supported.
+  // DLTdv 7 and 8: one column per camera (cam1_offset, ...), one row per
+  // frame; the offsets may change along the trial.
+  out.frames.resize(static_cast<Eigen::Index>(rows.size()), n_cameras);
+  out.per_frame = true;
   for (std::size_t r = 0; r < rows.size(); ++r) {
     if (static_cast<int>(rows[r].size()) != n_cameras)
       throw InputError(path, row_lines[r], 0, "",
                        fmt::format("{} fields, expected one offset per camera ({} cameras in video.cameras)",
                                    rows[r].size(), n_cameras));
-    for (int c = 0; c < n_cameras; ++c) {
-      const int v = integer_of(rows[r][c], row_lines[r], fmt::format("cam{}", c + 1));
-      if (r == 0) {
-        out.push_back(v);
-      } else if (v != out[c]) {
-        throw InputError(path, row_lines[r], rows[r][c].column, fmt::format("cam{}", c + 1),
-                         fmt::format("offset {} differs from the first row's {}: frame offsets that change during "
-                                     "the trial are not supported",
-                                     v, out[c]));
-      }
-    }
+    for (int c = 0; c < n_cameras; ++c)
+      out.frames(static_cast<Eigen::Index>(r), c) = frames_of(rows[r][c], row_lines[r], fmt::format("cam{}", c + 1));
   }
   return out;
 }

@@ -56,21 +56,13 @@ void add_run(CLI::App& app, CommandContext& ctx) {
     std::vector<std::string> out_dirs(n), errors(n);
     std::vector<pipeline::RunSummary> summaries(n);
     std::vector<bool> ok(n, false);
-    // Each session its own folder, even when two session folders share a
-    // name (a/demo and b/demo go to OUT/demo and OUT/demo-2).
-    std::set<std::string> taken;
-    for (size_t i = 0; i < n; ++i) {
-      if (n == 1) {
-        out_dirs[i] = args->out;
-        continue;
-      }
-      std::string base = fs::path(args->sessions[i]).lexically_normal().filename().string();
-      if (base.empty() || base == "." || base == "..") base = fs::weakly_canonical(args->sessions[i]).filename().string();
-      if (base.empty()) base = "session";
-      std::string name = base;
-      for (int k = 2; taken.count(name); ++k) name = fmt::format("{}-{}", base, k);
-      taken.insert(name);
-      out_dirs[i] = (fs::path(args->out) / name).string();
+    // Each session its own folder, stable across re-runs, even when two
+    // session folders share a name (a/demo and b/demo go to OUT/a__demo and
+    // OUT/b__demo).
+    if (n == 1) {
+      out_dirs[0] = args->out;
+    } else {
+      out_dirs = report::session_output_folders(args->out, args->sessions);
     }
     // One session: its models in parallel. Several: sessions in parallel.
     options.threads = n == 1 ? jobs : 1;
@@ -86,6 +78,8 @@ void add_run(CLI::App& app, CommandContext& ctx) {
             const pipeline::SessionState state = pipeline::build(args->sessions[i], session_options);
             report::OutputSet out;
             pipeline::add_run_outputs(out, state);
+            std::error_code ec;
+            out.set_source(fs::weakly_canonical(fs::absolute(args->sessions[i]), ec).string());
             std::vector<std::string> protected_dirs(args->sessions.begin(), args->sessions.end());
             out.commit(out_dirs[i], protected_dirs);
             summaries[i] = pipeline::summarise(state);

@@ -47,7 +47,10 @@ struct ForcePlateSpec {
   std::string model;
   double sample_rate_hz = 1000.0;
   double trigger_threshold_n = 25.0;
-  double pretrigger_fraction = 0.10;
+  // Share of the record before the trigger sample, for exports that carry
+  // no trigger (BioWare text, C3D). Absent: each such record's trigger is
+  // found in its own data (capture::trigger_sample_from_data).
+  std::optional<double> pretrigger_fraction;
   double a_m = 0.120;
   double b_m = 0.200;
   double az0_m = -0.040;
@@ -128,7 +131,8 @@ struct ForceRecord {
   ForceLayout layout = ForceLayout::EightChannel;
   double sample_rate_hz = 0.0;
   int pretrigger_samples = 0;   // from the header (eight-channel) or the manifest share
-  std::string trigger;          // header text, e.g. "Fz > 25 N"; may be empty
+  std::string trigger;          // header text, e.g. "Fz > 25 N", or how the trigger sample was found; may be empty
+  bool trigger_from_data = false;  // the export carried no trigger and the manifest no pretrigger_fraction
   Eigen::VectorXd t_s;          // 0 at the trigger sample: the file's times (eight-channel), or the
                                 // absolute times minus that of sample pretrigger_samples (BioWare)
   // EightChannel: columns Fx12 Fx34 Fy14 Fy23 Fz1 Fz2 Fz3 Fz4 in newtons.
@@ -140,6 +144,19 @@ struct ForceRecord {
   std::optional<Eigen::Vector3d> plate_geometry_m;
 };
 
+// DLTdv's camera frame offsets: row r of camera c in the marker table was
+// digitised in that camera's video frame r + offset. DLTdv writes its rows
+// already aligned, so the tracks are never shifted by them; they are kept to
+// say which video frame each row came from.
+struct FrameOffsets {
+  // One row per marker-table row (per_frame) or one row for the whole trial;
+  // one column per camera in [video].cameras order. Empty when no file.
+  Eigen::MatrixXi frames;
+  bool per_frame = false;
+  bool empty() const { return frames.size() == 0; }
+  int at(int row, int camera) const { return frames(per_frame ? row : 0, camera); }
+};
+
 // One trial's recordings as read from its folder (marker table, force file,
 // DLTdv offsets), before any stage has worked on them. Not fitting::TrialData,
 // the fitter's view of a processed trial.
@@ -148,11 +165,17 @@ struct TrialRecording {
   MarkerTracks2D tracks;
   ForceRecord force;
   std::string xypts_path;  // the marker table read (xypts.csv or a prefixed *xypts.csv)
-  // DLTdv's offsets.csv beside the marker table, one per camera (empty when
-  // absent): row r of camera c was digitised in that camera's video frame
-  // r + offset. DLTdv writes its rows already aligned, so the tracks are not
-  // shifted; the offsets say which video frame each row came from.
-  std::vector<int> frame_offsets;
+  // DLTdv's offsets.csv beside the marker table (empty when absent).
+  FrameOffsets frame_offsets;
+  // markers.c3d in place of the marker table: 3-D trajectories from an
+  // optoelectronic system, lab frame, metres; n_frames x (3 n_points) with
+  // point p's X Y Z in columns 3p..3p+2 ([video].points order), NaN where
+  // the system lost the marker. Empty (0 rows) when the trial has a marker
+  // table; then `tracks` holds it. With markers.c3d, `tracks` has the
+  // manifest's points and cameras and no rows.
+  std::string markers_path;
+  Eigen::MatrixXd markers_xyz_m;
+  bool has_3d_markers() const { return !markers_path.empty(); }
 };
 
 // 11 DLT coefficients L1..L11 of one camera, top-left image origin.
@@ -170,6 +193,13 @@ struct Session {
   // from its frame.
   std::vector<DltCoefficients> dlt_coefficients;
   std::vector<TrialRecording> trials;
+  // True when every trial brings its own 3-D markers (markers.c3d) and the
+  // session has no calibration: nothing to calibrate or reconstruct.
+  bool calibration_needed() const {
+    for (const TrialRecording& t : trials)
+      if (!t.has_3d_markers()) return true;
+    return !frame.empty() || !dlt_coefficients.empty();
+  }
 };
 
 }  // namespace dropfit

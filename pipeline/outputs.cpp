@@ -26,13 +26,24 @@ void add_reconstruction_outputs(report::OutputSet& out, const SessionState& stat
   }
 }
 
+report::TrialSource trial_source(const SessionState& state, std::size_t i) {
+  report::TrialSource source;
+  const ForceRecord& record = state.session.trials[i].force;
+  source.trigger = record.trigger;
+  source.trigger_from_data = record.trigger_from_data;
+  if (state.trials[i].force) source.cop_unavailable = state.trials[i].force->cop_unavailable;
+  return source;
+}
+
 void add_trial_outputs(report::OutputSet& out, const SessionState& state) {
   add_reconstruction_outputs(out, state);
   const Manifest& man = state.session.manifest;
   std::vector<trial::TrialResult> results;
-  for (const auto& t : state.trials) {
+  for (std::size_t i = 0; i < state.trials.size(); ++i) {
+    const diagnosis::TrialState& t = state.trials[i];
     const std::string dir = "trials/" + t.result.id + "/";
-    out.add(dir + "trial.json", report::trial_json(t.result));
+    const report::TrialSource source = trial_source(state, i);
+    out.add(dir + "trial.json", report::trial_json(t.result, &source));
     out.add(dir + "series.csv", report::series_csv(t.result.series));
     // OpenSim: markers with frame i at its force-clock time (the nominal
     // video clock when synchronisation found no offset), and the plate's

@@ -11,6 +11,7 @@
 #include "pipeline/pipeline.h"
 #include "report/export.h"
 #include "report/output.h"
+#include "report/results.h"
 
 namespace dropfit::pipeline {
 
@@ -21,6 +22,11 @@ void add_calibration_outputs(report::OutputSet& out, const calibration::Calibrat
 
 // Every trial's xyzpts.csv, residuals.csv and xyzres.csv (trials/T/).
 void add_reconstruction_outputs(report::OutputSet& out, const SessionState& state);
+
+// How trial i's force record was triggered and, from the processed record,
+// why it has no centre of pressure (trial.json's "trigger" and
+// "centre_of_pressure").
+report::TrialSource trial_source(const SessionState& state, std::size_t i);
 
 // Every trial's trial.json, series.csv, 3-D trajectories, markers.trc and
 // grf.mot, and summary.csv (the paper's Table 1 of the session).

@@ -10,6 +10,7 @@
 #include "capture/io.h"
 #include "core/error.h"
 #include "core/parallel.h"
+#include "pipeline/outputs.h"
 #include "pipeline/wiring.h"
 
 namespace dropfit::pipeline {
@@ -258,9 +259,13 @@ SessionState build(Session session, const BuildOptions& options) {
     if (say) say("closing the loop");
     close_loop(state);
   }
-  for (const auto& t : state.trials)
-    if (!t.result.accepted && static_cast<int>(state.reached) >= static_cast<int>(Stage::Trials))
-      state.notes.push_back(fmt::format("trial {} rejected: {}", t.result.id, t.result.reject_reason));
+  if (static_cast<int>(state.reached) >= static_cast<int>(Stage::Trials)) {
+    for (std::size_t i = 0; i < state.trials.size(); ++i) {
+      const trial::TrialResult& r = state.trials[i].result;
+      if (!r.accepted) state.notes.push_back(fmt::format("trial {} rejected: {}", r.id, r.reject_reason));
+      for (const auto& note : report::trial_source_notes(r.id, trial_source(state, i))) state.notes.push_back(note);
+    }
+  }
   return state;
 }
 

@@ -91,7 +91,7 @@ trial::TrialOptions trial_options(const Manifest& manifest, const std::string& t
 forceplate::ProcessOptions force_options(const Manifest& manifest, const ForceRecord& record) {
   forceplate::ProcessOptions options;
   options.trigger_threshold_n = manifest.forceplate.trigger_threshold_n;
-  options.pretrigger_fraction = manifest.forceplate.pretrigger_fraction;
+  options.pretrigger_fraction = manifest.forceplate.pretrigger_fraction.value_or(options.pretrigger_fraction);
   options.pretrigger_samples = record.pretrigger_samples > 0 ? record.pretrigger_samples : -1;
   options.sample_rate_hz = manifest.forceplate.sample_rate_hz;
   // A declared amplifier low-pass: its group delay is the plate's, not the clock's.

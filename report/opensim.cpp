@@ -51,7 +51,12 @@ GroundReaction ground_reaction(const forceplate::Resultants& plate, Eigen::Index
   g.force_n = plate.f_n.row(i).transpose();
   const double ax = plate.cop_m.rows() > i ? plate.cop_m(i, 0) : NAN;
   const double ay = plate.cop_m.rows() > i ? plate.cop_m(i, 1) : NAN;
-  if (std::isfinite(ax) && std::isfinite(ay)) {
+  if (!plate.cop_unavailable.empty()) {
+    // No centre of pressure in this record at all (an export without
+    // moments): NaN, never the plate centre, where the force is applied.
+    g.point_m.setConstant(NAN);
+    g.torque_n_m.setConstant(NAN);
+  } else if (std::isfinite(ax) && std::isfinite(ay)) {
     g.point_m = {ax, ay, 0.0};
     const double tz = plate.m_n_m(i, 2) - ax * plate.f_n(i, 1) + ay * plate.f_n(i, 0);
     g.torque_n_m = {0.0, 0.0, tz};

@@ -52,16 +52,21 @@ std::string markers_trc(const reconstruction::Trajectories& trajectories, const 
 // free moment about the vertical through it. Plate axes x, y are lab X, Y
 // (the convention of this project: forceplate.h, samples/generator); Fz is
 // positive upward on the load. The free moment is Tz = Mz - ax Fy + ay Fx.
-// Where the COP is undefined (|Fz| below the plate's threshold: NaN), the
-// point is the plate centre (0, 0, 0) and the torque 0, as gait tools write
-// it, so that an OpenSim reader never sees NaN.
+// Where the COP is undefined because the plate is unloaded (|Fz| below the
+// plate's threshold), the point is the plate centre (0, 0, 0) and the torque
+// 0, as gait tools write it: the force there is near zero. A record with no
+// centre of pressure at all (plate.cop_unavailable: an export without
+// moments) gives NaN point and torque for every sample, never the plate
+// centre: the force's point of application is not known.
 struct GroundReaction {
   Eigen::Vector3d force_n, point_m, torque_n_m;
 };
 GroundReaction ground_reaction(const forceplate::Resultants& plate, Eigen::Index sample);
 
 // grf.mot: every sample of the processed (zeroed) plate record on the force
-// clock, in OpenSim's frame.
+// clock, in OpenSim's frame; ground_force_p* and ground_torque_* NaN
+// throughout when the record has no centre of pressure (trial.json and the
+// report say why).
 std::string grf_mot(const forceplate::ForceTrial& force, const std::string& file_name = "grf.mot");
 
 }  // namespace dropfit::report

@@ -5,8 +5,14 @@
 #include <stdio.h>
 #include <unistd.h>
 
+#include <signal.h>
+
 #include <atomic>
+#include <cerrno>
 #include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
 
 #include "core/atomic_file.h"
 #include "core/error.h"
@@ -53,28 +59,92 @@ bool exchange(const fs::path& a, const fs::path& b) {
 #endif
 }
 
-// A folder written by dropfit before the marker existed: every entry at its
-// top is a name dropfit writes (or a temporary of one).
-bool written_by_older_dropfit(const fs::path& dir) {
-  static const char* const names[] = {"calibration.json", "dlt_coefficients.csv", "summary.csv", "trials",
-                                      "fit.json", "fits", "series", "diagnosis.json", "mat_model3.mjcf.xml",
-                                      "mat_model4.mjcf.xml", "report.html", "archive.csv", "archive.html"};
+// Staging and old folders of `name` in `parent` (".NAME.staging-PID-N",
+// ".NAME.old-PID-N") left by a run that was killed: those whose process is
+// gone are removed. A live process's are left alone (it may be committing).
+void remove_stale_staging(const fs::path& parent, const std::string& name) {
   std::error_code ec;
-  bool any = false;
-  for (const auto& e : fs::directory_iterator(dir, ec)) {
+  for (const auto& e : fs::directory_iterator(parent, ec)) {
     const std::string n = e.path().filename().string();
-    const bool folder = n == "trials" || n == "fits" || n == "series";
-    // Folders where dropfit writes folders, regular files elsewhere; never a link.
-    if (e.is_symlink(ec) || (folder ? !e.is_directory(ec) : !e.is_regular_file(ec))) return false;
-    bool known = n.find(".tmp-") != std::string::npos;
-    for (const char* name : names) known = known || n == name;
-    if (!known) return false;
-    any = true;
+    for (const char* kind : {".staging-", ".old-"}) {
+      const std::string prefix = "." + name + kind;
+      if (n.size() <= prefix.size() || n.compare(0, prefix.size(), prefix) != 0) continue;
+      const std::string rest = n.substr(prefix.size());
+      const std::size_t dash = rest.find('-');
+      long pid = 0;
+      try {
+        pid = std::stol(rest.substr(0, dash));
+      } catch (const std::exception&) {
+        continue;
+      }
+      if (pid <= 0 || (::kill(static_cast<pid_t>(pid), 0) == 0 || errno == EPERM)) continue;
+      std::error_code ignore;
+      fs::remove_all(e.path(), ignore);
+    }
   }
-  return any && !ec;
 }
 
 }  // namespace
+
+std::string output_source(const std::string& out_dir) {
+  std::ifstream in(fs::path(out_dir) / kOutputMarker);
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("source: ", 0) == 0) return line.substr(8);
+  return {};
+}
+
+std::vector<std::string> session_output_folders(const std::string& out_dir, const std::vector<std::string>& sessions) {
+  std::vector<std::string> canonical, names(sessions.size());
+  for (const auto& s : sessions) canonical.push_back(fs::weakly_canonical(fs::absolute(s)).string());
+  std::set<std::string> taken;
+  std::map<std::string, std::string> existing;  // session -> folder name, from the markers of earlier runs
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(out_dir, ec)) {
+    if (!e.is_directory(ec) || e.is_symlink(ec)) continue;
+    const std::string name = e.path().filename().string();
+    taken.insert(name);
+    const std::string source = output_source(e.path().string());
+    if (!source.empty()) existing.emplace(source, name);
+  }
+  // A session run before into this folder keeps its folder.
+  for (std::size_t i = 0; i < sessions.size(); ++i)
+    if (const auto it = existing.find(canonical[i]); it != existing.end()) names[i] = it->second;
+  // The others: the session folder's name, or with as many of its parent
+  // folders as make it unique ("a__demo", "b__demo"); "-2", "-3" last.
+  auto suffix = [&](std::size_t i, std::size_t k) {  // the last k parts of session i's path, joined by "__"
+    std::vector<std::string> parts;
+    for (const auto& part : fs::path(canonical[i])) {
+      const std::string p = part.string();
+      if (!p.empty() && p != "/") parts.push_back(p);
+    }
+    if (parts.empty()) parts.push_back("session");
+    std::string name = parts.back();
+    for (std::size_t d = 2; d <= k && d <= parts.size(); ++d) name = parts[parts.size() - d] + "__" + name;
+    return name;
+  };
+  const std::vector<std::string> assigned = names;
+  for (std::size_t i = 0; i < sessions.size(); ++i) {
+    if (!names[i].empty()) continue;
+    // The shortest suffix that no other new session shares at that depth
+    // and no existing folder holds.
+    std::string name;
+    for (std::size_t k = 1; k <= 64; ++k) {
+      name = suffix(i, k);
+      bool clash = taken.count(name) > 0;
+      for (std::size_t j = 0; j < sessions.size() && !clash; ++j)
+        clash = j != i && canonical[j] != canonical[i] && (assigned[j].empty() ? suffix(j, k) == name : assigned[j] == name);
+      if (!clash || name == suffix(i, k + 1)) break;
+    }
+    const std::string base = name;
+    for (int k = 2; taken.count(name); ++k) name = fmt::format("{}-{}", base, k);
+    names[i] = name;
+    taken.insert(name);
+  }
+  std::vector<std::string> out;
+  for (const auto& n : names) out.push_back((fs::path(out_dir) / n).string());
+  return out;
+}
 
 void OutputSet::commit(const std::string& out_dir, const std::vector<std::string>& protected_dirs) const {
   if (out_dir.empty()) throw Error("output folder: empty name");
@@ -108,10 +178,10 @@ void OutputSet::commit(const std::string& out_dir, const std::vector<std::string
     }
     if (!fs::is_directory(status)) throw Error(fmt::format("output folder '{}' is a file, not a folder", out_dir));
     const bool empty = fs::is_empty(target, ec);
-    if (!empty && !fs::exists(fs::symlink_status(target / kOutputMarker, ec)) && !written_by_older_dropfit(target)) {
-      throw Error(fmt::format("output folder '{}' already holds files dropfit did not write; name a new or empty "
-                              "folder (a folder dropfit wrote is replaced whole)",
-                              out_dir));
+    if (!empty && !fs::is_regular_file(fs::symlink_status(target / kOutputMarker, ec))) {
+      throw Error(fmt::format("output folder '{}' already holds files and no {} marker, so dropfit did not write "
+                              "it; name a new or empty folder (a folder dropfit wrote is replaced whole)",
+                              out_dir, kOutputMarker));
     }
   }
   fs::create_directories(parent, ec);
@@ -119,6 +189,8 @@ void OutputSet::commit(const std::string& out_dir, const std::vector<std::string
     throw Error(fmt::format("{}: cannot create folder: {}", parent.string(),
                             ec ? ec.message() : "a file of that name is in the way"));
   }
+
+  remove_stale_staging(parent, name);
 
   // Stage every file in a sibling folder, then swap it with the target: a
   // failure before the swap leaves the target as it was, and after it the
@@ -145,7 +217,8 @@ void OutputSet::commit(const std::string& out_dir, const std::vector<std::string
       write_file_synced(file.string(), content);
     }
     write_file_synced((staging / kOutputMarker).string(),
-                      "Written by dropfit. The next run into this folder replaces it whole.\n");
+                      "Written by dropfit. The next run into this folder replaces it whole.\n" +
+                          (source_.empty() ? std::string() : "source: " + source_ + "\n"));
     for (auto it = fs::recursive_directory_iterator(staging); it != fs::recursive_directory_iterator(); ++it) {
       if (it->is_directory()) sync_directory(it->path().string());
     }

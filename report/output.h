@@ -5,10 +5,11 @@
 // folder, then swaps it into place (renameat2 RENAME_EXCHANGE, or two
 // renames), so the output folder holds exactly this set: an error before
 // the swap leaves it as it was, and a re-run leaves no stale file of an
-// earlier one. A committed folder carries the marker file kOutputMarker; an
-// existing output folder without it is refused unless empty or holding only
-// names dropfit writes (results of a version before the marker): dropfit
-// never replaces a folder it did not write. A session folder is never written
+// earlier one. A committed folder carries the marker file kOutputMarker
+// (with the session it came from, when set); an existing output folder
+// without it is refused unless empty, whatever names it holds: dropfit
+// never replaces a folder it did not mark. Staging folders that a killed run
+// left beside the output folder (their process gone) are removed. A session folder is never written
 // into, whatever symbolic links the output folder held: the old folder is
 // removed (its links with it, never followed), never written into.
 #include <map>
@@ -24,6 +25,9 @@ class OutputSet {
   // relative_path uses '/' (e.g. "trials/trial1/trial.json").
   void add(const std::string& relative_path, std::string content);
   bool empty() const { return files_.empty(); }
+  // The folder the results come from (a session), recorded in the marker
+  // so that a later run finds its own folder (session_output_folders).
+  void set_source(const std::string& source) { source_ = source; }
   const std::map<std::string, std::string>& files() const { return files_; }
 
   // Replaces out_dir with exactly these files. Throws dropfit::Error (and
@@ -34,7 +38,20 @@ class OutputSet {
 
  private:
   std::map<std::string, std::string> files_;
+  std::string source_;
 };
+
+// The source recorded in out_dir's marker, "" when none.
+std::string output_source(const std::string& out_dir);
+
+// One output folder per session under out_dir, stable across re-runs: a
+// session whose results are already there (a marked sub-folder recording
+// it as its source, by canonical path) keeps that folder; the others get
+// their folder's name, prefixed by as many parent folders as make it
+// unique among the sessions and the folders already there (a/demo and
+// b/demo: "a__demo" and "b__demo"), "-2", "-3" only when the whole path
+// cannot tell them apart.
+std::vector<std::string> session_output_folders(const std::string& out_dir, const std::vector<std::string>& sessions);
 
 // Writes one file atomically (dropfit::write_file_atomic, core/atomic_file.h).
 void write_file_atomic(const std::string& path, const std::string& content);

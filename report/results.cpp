@@ -139,7 +139,18 @@ namespace {
 json number_or_null(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 }  // namespace
 
-std::string trial_json(const trial::TrialResult& r) {
+std::vector<std::string> trial_source_notes(const std::string& trial_id, const TrialSource& source) {
+  std::vector<std::string> notes;
+  if (source.trigger_from_data)
+    notes.push_back(fmt::format("trial {}: the force export has no trigger mark: trigger {}", trial_id, source.trigger));
+  if (!source.cop_unavailable.empty())
+    notes.push_back(fmt::format("trial {}: no centre of pressure ({}); grf.mot's point and torque columns are NaN, "
+                                "not the plate centre",
+                                trial_id, source.cop_unavailable));
+  return notes;
+}
+
+std::string trial_json(const trial::TrialResult& r, const TrialSource* source) {
   json doc = {{"id", r.id},
               {"accepted", r.accepted},
               {"reject_reason", r.reject_reason},
@@ -164,6 +175,11 @@ std::string trial_json(const trial::TrialResult& r) {
   if (!r.force_correction.empty()) {
     doc["force_correction"] = r.force_correction;
     doc["peak_force_uncorrected_n"] = number_or_null(r.peak_force_uncorrected_n);
+  }
+  if (source) {
+    doc["trigger"] = source->trigger;
+    doc["trigger_from_data"] = source->trigger_from_data;
+    doc["centre_of_pressure"] = source->cop_unavailable.empty() ? json(nullptr) : json(source->cop_unavailable);
   }
   return doc.dump(2) + "\n";
 }

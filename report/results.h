@@ -42,8 +42,23 @@ std::string residuals_csv(const reconstruction::Trajectories& trajectories);
 std::string xyzres_csv(const reconstruction::Trajectories& trajectories,
                        const std::vector<std::string>& point_names);
 
+// Where a trial's force record came from, for trial.json: how its trigger
+// sample was found (the export's own mark, the manifest's
+// pretrigger_fraction, or the data: capture's ForceRecord::trigger) and why
+// it has no centre of pressure ("" when it has one).
+struct TrialSource {
+  std::string trigger;
+  bool trigger_from_data = false;
+  std::string cop_unavailable;
+};
+// The notes a source gives the report, one line each, naming the trial.
+std::vector<std::string> trial_source_notes(const std::string& trial_id, const TrialSource& source);
+
 // OUT/trials/T/trial.json and series.csv (t_s,fz_n,impactor_z_m,deformation_m,surface_z_m).
-std::string trial_json(const trial::TrialResult& result);
+// With a source: "trigger" (text), "trigger_from_data" and
+// "centre_of_pressure" (null when the record has one, else why not: grf.mot's
+// point columns are then NaN).
+std::string trial_json(const trial::TrialResult& result, const TrialSource* source = nullptr);
 std::string series_csv(const trial::Series& series);
 // The session summary in the shape of the paper's Table 1, one row a trial:
 // trial,accepted,impact_velocity_m_s,impact_velocity_ci_m_s,max_deformation_m,

@@ -217,23 +217,40 @@ TEST(CaptureFormats, OffsetsBesideTheMarkerTable) {
   write_session(dir.path().string(), in);
   const fs::path trial = dir.path() / "trials/trial1";
   fs::rename(trial / "xypts.csv", trial / "t1xypts.csv");
-  // The contract's form: one row per camera, with a header line.
-  write_text((trial / "t1offsets.csv").string(), "offset\n0\n-3\n");
+  // As DLTdv 7 and 8 write it: a header camN_offset, one row per frame of
+  // the marker table, whole frames printed %.6f, changing along the trial.
+  write_text((trial / "t1offsets.csv").string(),
+             "cam1_offset,cam2_offset\n0.000000,-3.000000\n0.000000,-3.000000\n0.000000,-2.000000\n");
   const Session out = read_session(dir.path().string());
-  EXPECT_EQ(out.trials[0].frame_offsets, (std::vector<int>{0, -3}));
+  const FrameOffsets& o = out.trials[0].frame_offsets;
+  ASSERT_TRUE(o.per_frame);
+  ASSERT_EQ(o.frames.rows(), 3);
+  EXPECT_EQ(o.at(0, 1), -3);
+  EXPECT_EQ(o.at(2, 1), -2);
+  EXPECT_EQ(o.at(2, 0), 0);
   // DLTdv writes its rows already aligned (row r of camera c is that
   // camera's frame r + offset): the table is read unshifted.
   EXPECT_EQ(out.trials[0].tracks.n_frames(), 3);
   EXPECT_EQ(out.trials[0].tracks.uv_px.row(0), in.trials[0].tracks.uv_px.row(0));
+  // A per-frame file must have the marker table's number of rows.
+  write_text((trial / "t1offsets.csv").string(), "cam1_offset,cam2_offset\n0.000000,-3.000000\n");
+  expect_input_error([&] { read_session(dir.path().string()); }, (trial / "t1offsets.csv").string(), 0, "",
+                     "has 3 frames");
 
-  // DLTdv 8's per-frame form (one column per camera), constant.
-  write_text(dir.file("a.csv"), "cam1_offset,cam2_offset\n0,5\n0,5\n0,5\n");
-  EXPECT_EQ(read_offsets(dir.file("a.csv"), 2), (std::vector<int>{0, 5}));
-  // Offsets that change during the trial: refused, naming line and camera.
-  write_text(dir.file("b.csv"), "cam1_offset,cam2_offset\n0,5\n0,6\n");
-  expect_input_error([&] { read_offsets(dir.file("b.csv"), 2); }, dir.file("b.csv"), 3, "cam2", "change during");
-  write_text(dir.file("c.csv"), "0\n1.5\n");
-  expect_input_error([&] { read_offsets(dir.file("c.csv"), 2); }, dir.file("c.csv"), 2, "cam2", "not an integer");
+  // The contract's short form: one row per camera, with a header line.
+  write_text(dir.file("a.csv"), "offset\n0\n-3\n");
+  FrameOffsets a = read_offsets(dir.file("a.csv"), 2);
+  EXPECT_FALSE(a.per_frame);
+  EXPECT_EQ(a.at(7, 0), 0);
+  EXPECT_EQ(a.at(7, 1), -3);
+  // Integers, tab-separated, without a header: as DLTdv 7's text export.
+  write_text(dir.file("t.csv"), "0\t5\n0\t5\n");
+  EXPECT_EQ(read_offsets(dir.file("t.csv"), 2).at(1, 1), 5);
+  // A fraction of a frame names no video frame: refused with line and camera.
+  write_text(dir.file("c.csv"), "cam1_offset,cam2_offset\n0.000000,1.500000\n");
+  expect_input_error([&] { read_offsets(dir.file("c.csv"), 2); }, dir.file("c.csv"), 2, "cam2", "whole number");
+  write_text(dir.file("e.csv"), "cam1_offset,cam2_offset\n0.000000,1e308\n");
+  expect_input_error([&] { read_offsets(dir.file("e.csv"), 2); }, dir.file("e.csv"), 2, "cam2", "beyond");
   write_text(dir.file("d.csv"), "0,1,2\n");
   expect_input_error([&] { read_offsets(dir.file("d.csv"), 2); }, dir.file("d.csv"), 1, "", "one offset per camera");
   EXPECT_EQ(offsets_path("/a/trial1-xypts.csv"), "/a/trial1-offsets.csv");

@@ -174,6 +174,7 @@ TEST(BioWareExport, RefusedWithTheReason) {
     return dir.write("v.txt", s);
   };
   ForcePlateSpec plate;
+  plate.pretrigger_fraction = 0.1;  // not about the trigger
   // No Fz: no ground reaction force.
   std::string p = variant("abs time (s)\tFz\tMx\tMy\tAx\tAy\tFz", "abs time (s)\tFx\tMx\tMy\tAx\tAy\tFx");
   InputError e = input_error([&] { read_force(p, plate); });
@@ -317,7 +318,7 @@ TEST(BioWareReal, DropJumpTwoPlates) {
   const ForceRecord r = read_force(real("kistler_DJ_2plates.txt").string(), plate);
   const forceplate::Resultants raw = forceplate::from_resultant_columns(r.t_s, r.data, 50.0, plate.az0_m);
   forceplate::ProcessOptions o;
-  o.pretrigger_fraction = plate.pretrigger_fraction;
+  o.pretrigger_fraction = *plate.pretrigger_fraction;
   o.sample_rate_hz = 1000.0;
   const forceplate::ForceTrial ft = forceplate::process(raw, o);
   EXPECT_NEAR(ft.peak_fz_n, 5040.0, 15.0);

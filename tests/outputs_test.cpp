@@ -59,14 +59,26 @@ TEST(OutputSetCommit, ReplacesAnEarlierCommitWholeAndRefusesForeignFolders) {
   write_text(foreign / "thesis.tex", "keep me");
   EXPECT_THROW(second.commit(foreign.string()), Error);
   EXPECT_EQ(read_text(foreign / "thesis.tex"), "keep me");
-  // Results of a dropfit before the marker (only names dropfit writes) are replaced.
-  const fs::path legacy = dir / "legacy";
-  fs::create_directories(legacy / "trials" / "t1");
-  write_text(legacy / "report.html", "old");
-  write_text(legacy / "calibration.json", "{}");
-  second.commit(legacy.string());
-  EXPECT_EQ(read_text(legacy / "a.txt"), "2");
-  EXPECT_FALSE(fs::exists(legacy / "report.html"));
+  // A person's own folder that happens to hold names dropfit writes
+  // (trials/, summary.csv) but no marker is theirs: refused, untouched.
+  const fs::path own = dir / "own";
+  fs::create_directories(own / "trials" / "t1");
+  write_text(own / "summary.csv", "my notes");
+  write_text(own / "trials" / "t1" / "video.txt", "mine");
+  EXPECT_THROW(second.commit(own.string()), Error);
+  EXPECT_EQ(read_text(own / "summary.csv"), "my notes");
+  EXPECT_EQ(read_text(own / "trials" / "t1" / "video.txt"), "mine");
+  // Staging and old folders of a killed run (its process gone) are removed
+  // by the next commit; a live process's are left.
+  fs::create_directories(dir / ".out.staging-999999999-0" / "trials");
+  fs::create_directories(dir / ".out.old-999999999-3");
+  const fs::path live = dir / fmt::format(".out.staging-{}-77", ::getpid());
+  fs::create_directories(live);
+  second.commit(out.string());
+  EXPECT_FALSE(fs::exists(dir / ".out.staging-999999999-0"));
+  EXPECT_FALSE(fs::exists(dir / ".out.old-999999999-3"));
+  EXPECT_TRUE(fs::exists(live));
+  fs::remove_all(live);
   // A name that would leave the output folder is refused.
   report::OutputSet escape;
   escape.add("../escaped.txt", "x");
@@ -91,9 +103,35 @@ TEST_F(Outputs, SessionsWithTheSameNameGetAFolderEach) {
                                 (dir_ / "out").string(), "--no-diagnose"},
                                dir_.path());
   ASSERT_EQ(r.exit_code, 0) << r.describe();
-  EXPECT_TRUE(fs::exists(dir_ / "out" / "demo" / "report.html"));
-  EXPECT_TRUE(fs::exists(dir_ / "out" / "demo-2" / "report.html"));
+  EXPECT_TRUE(fs::exists(dir_ / "out" / "a__demo" / "report.html"));
+  EXPECT_TRUE(fs::exists(dir_ / "out" / "b__demo" / "report.html"));
   EXPECT_NE(r.out.find("2 session(s)"), std::string::npos) << r.describe();
+}
+
+// Per-session folders are chosen from the session's path and found again
+// by the marker's source on a re-run, whatever the order or company.
+TEST(SessionOutputFolders, StableAcrossReRuns) {
+  TempDir dir;
+  for (const char* p : {"lab/a/demo", "lab/b/demo", "lab/c/other"}) fs::create_directories(dir / p);
+  const std::string out = (dir / "out").string();
+  const std::string a = (dir / "lab/a/demo").string(), b = (dir / "lab/b/demo").string(),
+                    c = (dir / "lab/c/other").string();
+  std::vector<std::string> first = report::session_output_folders(out, {a, b, c});
+  EXPECT_EQ(first, (std::vector<std::string>{out + "/a__demo", out + "/b__demo", out + "/other"}));
+  EXPECT_EQ(report::session_output_folders(out, {b, a}), (std::vector<std::string>{out + "/b__demo", out + "/a__demo"}));
+  // Written once: b alone with c finds b's folder by its marker, not "demo".
+  for (std::size_t i = 0; i < 3; ++i) {
+    report::OutputSet set;
+    set.add("x.txt", "1");
+    set.set_source(fs::weakly_canonical(std::vector<std::string>{a, b, c}[i]).string());
+    set.commit(first[i]);
+  }
+  EXPECT_EQ(report::output_source(first[1]), fs::weakly_canonical(b).string());
+  EXPECT_EQ(report::session_output_folders(out, {c, b}), (std::vector<std::string>{out + "/other", out + "/b__demo"}));
+  // A new session named like an existing folder gets a longer name.
+  fs::create_directories(dir / "lab2/c/other");
+  EXPECT_EQ(report::session_output_folders(out, {(dir / "lab2/c/other").string()}),
+            (std::vector<std::string>{out + "/c__other"}));
 }
 
 // A re-run replaces the results whole; a link planted in the output folder

@@ -198,5 +198,26 @@ TEST(ReportOpenSim, GroundReactionRecoversPointAndFreeMoment) {
   EXPECT_DOUBLE_EQ(v[9], 0.0);
 }
 
+// A BioWare export of Fx Fy Fz only: no centre of pressure. Every loaded
+// sample's point and torque are NaN in grf.mot, never the plate centre.
+TEST(ReportOpenSim, NoMomentsNoPlateCentreCentreOfPressure) {
+  Eigen::MatrixXd columns = Eigen::MatrixXd::Constant(3, 8, NAN);
+  columns.leftCols(3) << 10.0, 5.0, 900.0, 12.0, 4.0, 2400.0, 0.0, 0.0, 1.0;
+  const forceplate::Resultants plate =
+      forceplate::from_resultant_columns(Eigen::VectorXd::LinSpaced(3, 0.0, 0.002), columns);
+  ASSERT_FALSE(plate.cop_unavailable.empty());
+  forceplate::ForceTrial trial;
+  trial.plate = plate;
+  const auto lines = lines_of(report::grf_mot(trial));
+  ASSERT_EQ(lines.size(), 7u + 3u);
+  for (std::size_t r = 7; r < 10; ++r) {
+    const auto row = fields(lines[r], '\t');
+    ASSERT_EQ(row.size(), 10u);
+    EXPECT_NE(row[2], "NaN") << "the force is known";
+    for (std::size_t c = 4; c < 10; ++c) EXPECT_EQ(row[c], "NaN") << lines[r];
+  }
+  EXPECT_DOUBLE_EQ(std::stod(fields(lines[8], '\t')[2]), 2400.0);
+}
+
 }  // namespace
 }  // namespace dropfit
