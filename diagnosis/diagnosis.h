@@ -400,43 +400,6 @@ struct MatDiagnosis {
 
 MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const MatStageOptions& options = {});
 
-// ---- The residual traced to its form ----------------------------------------
-//
-// The held-out force residual (measured minus predicted, in the plate's
-// noise SDs) mapped against the states that tell the missing term apart:
-//   deflection          the face's travel (video; the model's in gaps):
-//                       an elastic shape (a curve too soft or stiff somewhere);
-//   deflection_rate     the model's face speed: a viscous term;
-//   time_since_contact  the fitted contact on the force clock: with the
-//                       deflection, loading and unloading apart, a memory
-//                       (a stress that relaxes: loading and unloading at
-//                       the same deflection disagree beyond what rate says);
-//   recording_order     each held-out trial's mean residual by its place in
-//                       the session: the mat changing between trials.
-// Each axis: binned means and the share of the residual's sum of squares
-// they explain (r2). The form is the axis that explains most (at least
-// min_share); memory when deflection split into loading and unloading
-// explains more than deflection and rate alone by min_share.
-struct ResidualAxis {
-  std::string name;
-  std::vector<double> centre, mean_sd, count;  // per bin: centre (SI), mean residual (noise SDs), samples
-  double r2 = 0.0;
-};
-struct ResidualMap {
-  std::vector<ResidualAxis> axes;  // deflection_m, deflection_rate_m_s, time_since_contact_s, recording_order
-  double loading_unloading_r2 = 0.0;  // deflection binned separately while loading and unloading
-  double order_slope_sd = 0.0, order_slope_t = 0.0;  // per-trial mean residual against recording order
-  std::string form;      // elastic, viscous, memory, trial_to_trial or none
-  std::string proposal;  // the term it calls for, one sentence
-};
-// `reports` as the fitter returns them (simulation on the trial's samples,
-// fitted contact shift); held-out ones (train = false) are mapped, each
-// trial's recording order being the position of its id in `trials`;
-// force_noise_n is the fallback for a trial without measured noise.
-ResidualMap map_residual(const std::vector<fitting::TrialData>& trials,
-                         const std::vector<fitting::TrialReport>& reports, double force_noise_n = 20.0,
-                         double min_share = 0.3);
-
 // ---- Table mode -------------------------------------------------------------
 
 struct TableStageOptions {

@@ -7,6 +7,7 @@
 #include <cmath>
 
 #include "diagnosis/diagnosis.h"
+#include "diagnosis/model_choice.h"
 
 namespace dropfit::diagnosis {
 namespace {

@@ -8,7 +8,7 @@
 #include <cmath>
 #include <random>
 
-#include "diagnosis/diagnosis.h"
+#include "diagnosis/model_choice.h"
 
 namespace dropfit::diagnosis {
 namespace {
