@@ -449,6 +449,19 @@ SynthOptions foam_world_options(std::uint64_t seed) {
     const ChainSimulation sim = simulate_foam_column(f, im);
     const double thickness = f.top.thickness_m + f.base.thickness_m;
     if (!(sim.impactor_m.maxCoeff() < 0.88 * thickness) || !std::isfinite(sim.separation_s)) continue;
+    // A landing mat like the paper's: the fastest trial's peak within 25 %
+    // and its travel within 20 mm of Table 1 at that speed (interpolated).
+    const double tv[5] = {4.30, 4.80, 5.25, 5.75, 6.50}, tf[5] = {5593, 6341, 7054, 8398, 9597},
+                 td[5] = {0.088, 0.099, 0.100, 0.113, 0.118};
+    auto table = [&](const double* y) {
+      const double v = std::clamp(v_max, tv[0], tv[4]);
+      int i = 0;
+      while (i < 3 && v > tv[i + 1]) ++i;
+      return y[i] + (y[i + 1] - y[i]) * (v - tv[i]) / (tv[i + 1] - tv[i]);
+    };
+    if (std::abs(sim.grf_n.maxCoeff() / table(tf) - 1.0) > 0.25 ||
+        std::abs(sim.impactor_m.maxCoeff() - table(td)) > 0.02)
+      continue;
     o.foam = f;
     o.layers = {{"top_foam", f.top.thickness_m, f.top.mass_kg}, {"base_foam", f.base.thickness_m, f.base.mass_kg}};
     return o;
