@@ -137,8 +137,10 @@ bool preset_options(int argc, char** argv, std::string& world, dropfit::synth::S
       o = dropfit::synth::lab_session_options(seed);
     else if (world == "independent")
       o = dropfit::synth::independent_world_options(seed);
+    else if (world == "foam")
+      o = dropfit::synth::foam_world_options(seed);
     else
-      throw dropfit::Error(fmt::format("--world '{}': expected classic, lab or independent", world));
+      throw dropfit::Error(fmt::format("--world '{}': expected classic, lab, independent or foam", world));
   } catch (const std::exception& e) {
     fmt::print(stderr, "dropfit-synth: error: {}\n", e.what());
     return false;
@@ -162,7 +164,8 @@ void add_run_options(CLI::App& app, CliValues& v, dropfit::synth::SynthOptions& 
   app.add_option("--truth", v.truth_path, "truth JSON to write (outside the session folder)")->required();
   app.add_option("--world", v.world,
                  "preset: lab (default: a realistic lab session, generator's default mat), independent (lab with a "
-                 "random plausible mat and impact speeds drawn from the seed), classic (the older tests' world)")
+                 "random plausible mat and impact speeds drawn from the seed), foam (lab on a random foam column: a "
+                 "continuum mat), classic (the older tests' world)")
       ->capture_default_str();
   app.add_option("--seed", o.seed, "random seed")->capture_default_str();
   app.add_option("--model", v.model, "mat model 1..4 (paper's Models 1-4; Model 5 is not generated)")

@@ -1,0 +1,73 @@
+#pragma once
+// Fitting Model 6 (fitting/model6.h), the foam column, to drop-test trials
+// with the measured-channel objective of fitting/fit.h: plate force over its
+// measured noise at every sample from contact_search_s before the contact
+// estimate to the contact's end (+ window_margin_s), and impactor face
+// travel over its noise wherever measured; each training trial's contact
+// instant on the force clock (dt_c) fitted. The plate's delay behind the
+// face (the stress crossing the column) is the model's own, so dt_c only
+// absorbs the error of the contact estimate t = 0 (the video's contact
+// placed on the force clock through the trial stage's offset, which reads
+// the column's onset lag, up to 2-3 ms, as clock): dt_c in
+// [contact_shift_min_s, contact_shift_max_s].
+//
+// Free parameters (fitted as logarithms, with the derivatives of
+// fitting/model6_impl.h): the top foam's plateau, modulus, hardening and
+// densification stress; the base foam's four; one densification strain
+// shared by the two foams (both collapse near the same strain: the
+// densification of a foam the training impact barely reaches is otherwise
+// free to run to its bound); the two Prony terms (g, tau each; tau_1 in
+// [0.5, 10] ms, below the plate's resolution a Prony term is a dashpot;
+// tau_2 in [10, 300] ms) and the viscosity. The densification exponent is
+// fixed (densification_exponent). Start: a generic landing-mat foam pair
+// with every stress scaled by the training trials' peak stress.
+//
+// This fitter stands beside fitting/fit.h's (which fits Models 1-5 and the
+// loop's effects) until Model 6 joins its ModelKind: it returns the same
+// TrialReport per trial, so held-out errors read the same.
+#include <string>
+#include <vector>
+
+#include "fitting/fit.h"
+#include "fitting/model6.h"
+
+namespace dropfit::fitting {
+
+struct Model6FitOptions {
+  // The two foams' thicknesses (the manifest's layers); 5 + 3 elements at
+  // 0.25 ms steps: within 0.3 % of the peak of a 15 + 11 element column.
+  Model6Geometry geometry{0.0625, 0.11, 0.08, 5, 3, 2.5e-4};
+  double top_mass_kg = 2.4, base_mass_kg = 3.6;
+  std::vector<std::string> train_ids;  // empty: the accepted trial with the median impact velocity
+  double densification_exponent = 2.0;
+  double force_noise_n = 20.0;       // fallbacks when a trial carries no measured noise
+  double marker_noise_m = 5e-4;
+  double min_force_noise_n = 0.5, min_marker_noise_m = 1e-4;
+  double contact_search_s = 0.004;   // force samples this long before t = 0 are in the window
+  double contact_threshold_n = 25.0; // the contact ends when the measured force stays below this
+  double window_margin_s = 0.01;
+  double contact_shift_min_s = -3e-3;  // dt_c in [min, max]
+  double contact_shift_max_s = 1e-3;
+  int oversample = 2;                // simulated samples per plate sample
+  int max_iterations = 200;
+};
+
+struct Model6FitResult {
+  Model6Params params;
+  std::vector<std::string> train_ids;
+  std::vector<ParameterEstimate> estimates;  // the free parameters, SEs from J^T J
+  std::vector<TrialReport> trials;           // every trial predicted (train: its fitted dt_c)
+  double cost = 0.0;                         // 0.5 x sum of squared residuals (noise units)
+  int n_residuals = 0;
+  double force_rms_sigma = 0.0, impactor_rms_sigma = 0.0;  // training residual RMS per channel
+  long iterations = 0;
+  double seconds = 0.0;
+};
+
+// Throws Error for unusable input (no accepted trial, unknown train id).
+Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6FitOptions& options);
+
+// One trial predicted from its own impact velocity; only dt_c is fitted.
+TrialReport predict_model6(const TrialData& trial, const Model6Params& params, const Model6FitOptions& options);
+
+}  // namespace dropfit::fitting

@@ -1,0 +1,136 @@
+// Model 6 (the foam column) fitted on continuum-mat sessions, trained on
+// the median-velocity trial and predicting the others, against the truth:
+//   - ../shared/validation-continuum c1 and c2 (a world that shares no code
+//     with dropfit; read in place, skipped without ../shared, failing under
+//     CI=true);
+//   - sessions of the generator's own foam world (samples/generator/foam.h:
+//     another elastic law and integrator than Model 6's), other foams.
+// Asserted on c1 and c2, per trial: the held-out peak force within 2 % of
+// the truth, the maximum face travel within 1.5 mm, the video-force clock
+// offset from the fitted contact instant within 0.3 ms; and the training
+// fit near the noise (RMS under 4 noise SDs on both channels: 1.9 and 1.1
+// on c1, 3.3 and 1.4 on c2, whose plate noise is a few newtons). On the
+// generator's foam (its densification (e_d / (e_d - e))^n - 1 over an
+// exponential plateau, not Model 6's tanh plateau and (e / (e_d - e))^2)
+// those targets are not met yet: seed 2401 trains to 13 and 5 noise SDs
+// and predicts peaks within 6.4 %, travel within 2.0 mm, offsets within
+// 0.53 ms; asserted at 8 %, 2.5 mm, 0.6 ms and 16 / 6 noise SDs so that a
+// regression shows.
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+
+#include "capture/io.h"
+#include "core/error.h"
+#include "pipeline/pipeline.h"
+#include "diagnosis/model_choice.h"
+#include "fitting/model6_fit.h"
+#include "samples/generator/synth.h"
+
+namespace dropfit {
+namespace {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+
+struct TruthTrial {
+  std::string id;
+  double peak_n = 0.0, max_deformation_m = 0.0, offset_s = 0.0;
+};
+
+fitting::Model6FitOptions options_for(const Manifest& m) {
+  fitting::Model6FitOptions o;
+  if (m.mat.layers.size() < 2) throw Error("a foam column needs two declared layers");
+  o.geometry.top_thickness_m = m.mat.layers[0].thickness_m;
+  o.geometry.base_thickness_m = m.mat.layers[1].thickness_m;
+  o.top_mass_kg = m.mat.layers[0].mass_kg;
+  o.base_mass_kg = m.mat.layers[1].mass_kg;
+  o.geometry.area_m2 = m.impactor.footprint_m[0] * m.impactor.footprint_m[1];
+  return o;
+}
+
+struct Tolerance {
+  double peak = 0.02, travel_m = 1.5e-3, offset_s = 3e-4, force_sd = 4.0, travel_sd = 4.0;
+};
+
+// Fits Model 6 on the session and checks every held-out trial against the truth.
+void check_session(const Session& session, const std::vector<TruthTrial>& truth, const Tolerance& tol = {}) {
+  pipeline::SessionState state = pipeline::build(session, {.upto = pipeline::Stage::Trials});
+  const fitting::Model6FitOptions o = options_for(session.manifest);
+  const fitting::Model6FitResult fit = fitting::fit_model6(state.fit_data, o);
+  EXPECT_LT(fit.force_rms_sigma, tol.force_sd);
+  EXPECT_LT(fit.impactor_rms_sigma, tol.travel_sd);
+  std::printf("model6 fit %.2f s, %ld iterations, training RMS force %.2f, travel %.2f noise SDs\n", fit.seconds,
+              fit.iterations, fit.force_rms_sigma, fit.impactor_rms_sigma);
+  // Chosen over the lumped chain by held-out prediction on both channels.
+  fitting::FitOptions m4 = state.baseline_fit_options;
+  m4.sensitivity = false;
+  const fitting::FitResult chain = fitting::fit(state.fit_data, m4);
+  const diagnosis::HeldOutChoice choice =
+      diagnosis::choose_by_held_out(state.fit_data, "model4", chain.trials, "model6", fit.trials);
+  EXPECT_EQ(choice.chosen, "model6") << choice.evidence;
+  std::printf("%s\n", choice.evidence.c_str());
+  for (const TruthTrial& t : truth) {
+    SCOPED_TRACE(t.id);
+    const auto rep = std::find_if(fit.trials.begin(), fit.trials.end(), [&](const auto& r) { return r.id == t.id; });
+    ASSERT_NE(rep, fit.trials.end());
+    const auto st = std::find_if(state.trials.begin(), state.trials.end(),
+                                 [&](const auto& s) { return s.result.id == t.id; });
+    ASSERT_NE(st, state.trials.end());
+    ASSERT_TRUE(st->result.accepted) << st->result.reject_reason;
+    double sim_peak = 0.0, sim_travel = 0.0;
+    for (Eigen::Index i = 0; i < rep->simulation.t_s.size(); ++i) {
+      if (rep->simulation.t_s[i] > rep->window_end_s) break;
+      sim_peak = std::max(sim_peak, rep->simulation.grf_n[i]);
+      if (rep->simulation.t_s[i] >= 0.0) sim_travel = std::max(sim_travel, rep->simulation.impactor_m[i]);
+    }
+    EXPECT_NEAR(sim_peak / t.peak_n, 1.0, tol.peak) << "peak " << sim_peak << " against " << t.peak_n;
+    EXPECT_NEAR(sim_travel, t.max_deformation_m, tol.travel_m);
+    const double offset = st->result.video_offset_s - rep->contact_shift_s;
+    EXPECT_NEAR(offset, t.offset_s, tol.offset_s);
+    std::printf("%s%s: peak %+.2f %%, travel %+.2f mm, offset error %+.3f ms (onset estimate %+.3f ms)\n",
+                t.id.c_str(), rep->train ? " (train)" : "", 100.0 * (sim_peak / t.peak_n - 1.0),
+                1e3 * (sim_travel - t.max_deformation_m), 1e3 * (offset - t.offset_s),
+                1e3 * (st->result.video_offset_s - t.offset_s));
+  }
+}
+
+fs::path continuum_root() { return fs::path(DROPFIT_SOURCE_DIR) / ".." / "shared" / "validation-continuum"; }
+
+bool shared_present() {
+  if (fs::exists(continuum_root())) return true;
+  const char* ci = std::getenv("CI");
+  if (ci && std::string(ci) == "true") ADD_FAILURE() << "CI=true and " << continuum_root() << " is missing";
+  return false;
+}
+
+void check_shared(const std::string& name) {
+  if (!shared_present()) GTEST_SKIP() << "../shared/validation-continuum is absent";
+  const fs::path dir = continuum_root() / name;
+  std::ifstream in(dir / "truth.json");
+  const json truth = json::parse(in);
+  std::vector<TruthTrial> tt;
+  for (const auto& t : truth["trials"])
+    tt.push_back({t["id"], t["peak_force_n"], t["max_deformation_m"], t["video_offset_s"]});
+  check_session(capture::read_session((dir / "session").string()), tt);
+}
+
+TEST(Model6Fit, SharedContinuumC1) { check_shared("c1-foam"); }
+TEST(Model6Fit, SharedContinuumC2) { check_shared("c2-foam"); }
+
+TEST(Model6Fit, GeneratorFoam) {
+  const synth::SyntheticSession s = synth::make_session(synth::foam_world_options(2401));
+  std::vector<TruthTrial> tt;
+  for (const auto& t : s.truth.trials) tt.push_back({t.id, t.peak_force_n, t.max_deformation_m, t.video_offset_s});
+  check_session(s.session, tt, Tolerance{0.08, 2.5e-3, 6e-4, 16.0, 6.0});
+}
+
+}  // namespace
+}  // namespace dropfit
