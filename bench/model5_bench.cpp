@@ -3,8 +3,8 @@
 // ("typical"), at the corners of the fitter's bounds (every stiffness
 // 2e3 or 3e7 N/m, every damping 3 or 3e4 N s/m; fitting/fit.h: the start
 // ranges widened 10x) and at the dearest points inside them (see corner()), with the current scheme (fitting/model5_impl.h: the
-// vertical elements implicit) and the former explicit leapfrog
-// (simulate_model5_leapfrog, its step capped by the stiffest element); the
+// vertical elements implicit) and the explicit leapfrog reference
+// (bench/model5_leapfrog.h, its step capped by the stiffest element); the
 // Jet version (8 derivatives) for the fitter; how the time grows with the
 // grid; Model 4 for scale.
 //
@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "bench/model5_impact.h"
+#include "bench/model5_leapfrog.h"
 #include "fitting/model5.h"
 #include "fitting/model5_impl.h"
 #include "fitting/models.h"
@@ -25,6 +26,7 @@ namespace {
 using namespace dropfit::fitting;
 
 using dropfit::bench::model5_trial3;
+using dropfit::bench::simulate_model5_leapfrog;
 
 // 0 typical (Table 2), 1 k min r min, 2 k min r max, 3 k max r min, 4 k max r max
 // (every element); inside the bounds, where the step is set by an

@@ -27,6 +27,7 @@
 #include <vector>
 
 #include "bench/model5_impact.h"
+#include "bench/model5_leapfrog.h"
 #include "fitting/model5.h"
 #include "fitting/models.h"
 
@@ -35,6 +36,7 @@ namespace {
 using namespace dropfit::fitting;
 
 using dropfit::bench::model5_trial3;
+using dropfit::bench::simulate_model5_leapfrog;
 
 double cpu_now() {
   timespec ts;

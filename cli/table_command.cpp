@@ -12,56 +12,12 @@
 #include "cli/command.h"
 #include "core/error.h"
 #include "diagnosis/diagnosis.h"
-#include "fitting/fit.h"
+#include "fitting/table_fit.h"
 #include "report/output.h"
 #include "report/table.h"
 
 namespace dropfit::cli {
 namespace {
-
-// The parameters fitted per model from summaries: the springs and dampers
-// (and Model 2's effective mass); layer masses stay as given.
-std::vector<std::string> table_free(fitting::ModelKind model) {
-  switch (model) {
-    case fitting::ModelKind::Model1: return {"k1_n_m", "r1_n_s_m"};
-    case fitting::ModelKind::Model2: return {"k1_n_m", "r1_n_s_m", "m_eff_kg"};
-    case fitting::ModelKind::Model3: return {"k1_n_m", "k2_n_m", "r1_n_s_m", "r2_n_s_m"};
-    default: return {"k1_n_m", "k2_n_m", "k3_n_m", "r1_n_s_m", "r2_n_s_m", "r3_n_s_m"};
-  }
-}
-
-// Impact options shared by every fit: the starting point is the paper's
-// Table 2 for the model (a fixed, documented start), with the given masses.
-fitting::TableFitOptions table_options(fitting::ModelKind model, double impactor_mass_kg, double m1_kg, double m2_kg) {
-  fitting::TableFitOptions o;
-  o.model = model;
-  o.base = fitting::paper_table2(model, model == fitting::ModelKind::Model2 ? 2.0 : 0.0);
-  o.base.m1_kg = m1_kg;
-  o.base.m2_kg = m2_kg;
-  o.free = table_free(model);
-  o.impactor_mass_kg = impactor_mass_kg;
-  return o;
-}
-
-// Each impact left out: fitted to every other impact (all of them trained
-// together), the left-out one predicted from its velocity.
-std::vector<report::TableHeldOut> leave_one_out(const std::vector<fitting::TableTrial>& trials,
-                                                const fitting::TableFitOptions& options) {
-  std::vector<report::TableHeldOut> out;
-  for (const auto& held : trials) {
-    fitting::TableFitOptions o = options;
-    o.train_ids.clear();
-    for (const auto& t : trials)
-      if (t.id != held.id) o.train_ids.push_back(t.id);
-    const fitting::TableFitResult fit = fitting::fit_table(trials, o);
-    for (const auto& r : fit.trials) {
-      if (r.id != held.id) continue;
-      out.push_back({held.id, fit.params, r.impact_velocity_m_s, r.peak_force_n, r.simulated_peak_force_n,
-                     r.peak_force_pct_diff, r.max_deformation_m, r.simulated_max_deformation_m});
-    }
-  }
-  return out;
-}
 
 void add_table(CLI::App& app, CommandContext& /*ctx*/) {
   struct Args {
@@ -101,36 +57,29 @@ void add_table(CLI::App& app, CommandContext& /*ctx*/) {
     }
     run.model = fitting::model_from_name(args->model);
     run.impactor_mass_kg = args->impactor_mass_kg;
-    const auto options = table_options(run.model, args->impactor_mass_kg, args->m1_kg, args->m2_kg);
+    const auto options = fitting::table_options(run.model, args->impactor_mass_kg, args->m1_kg, args->m2_kg);
     run.gravity_m_s2 = options.gravity_m_s2;
     run.free = options.free;
 
     auto train_options = options;
     train_options.train_ids = args->train;
     run.fit = fitting::fit_table(run.trials, train_options);
+    // A fit that is no mat (its peak at contact, its impactor never
+    // leaving) is refused: nothing is written, the reason is the error.
+    if (!run.fit.refused.empty())
+      throw Error(fmt::format("{}: {} refused, no physical optimum: {}; nothing written", args->table,
+                              fitting::model_name(run.model), run.fit.refused));
     for (const auto& r : run.fit.trials)
       if (r.train) run.train_ids.push_back(r.id);
     if (run.trials.size() >= 3) {
-      run.leave_one_out = leave_one_out(run.trials, options);
+      run.leave_one_out = fitting::table_leave_one_out(run.trials, options, &run.notes);
     } else {
       run.notes.push_back("2 impacts: leave-one-out needs at least 3");
     }
     // The trained model's peak force over the table's velocity range.
-    double vmin = run.trials.front().impact_velocity_m_s, vmax = vmin;
-    for (const auto& t : run.trials) {
-      vmin = std::min(vmin, t.impact_velocity_m_s);
-      vmax = std::max(vmax, t.impact_velocity_m_s);
-    }
-    for (int i = 0; i <= 40; ++i) {
-      fitting::Impact impact;
-      impact.mass_kg = run.impactor_mass_kg;
-      impact.gravity_m_s2 = run.gravity_m_s2;
-      impact.velocity_m_s = (0.9 * vmin) + (1.1 * vmax - 0.9 * vmin) * i / 40.0;
-      impact.output_dt_s = 5e-4;  // as fit_table samples
-      impact.duration_s = 0.25;
-      run.curve_velocity_m_s.push_back(impact.velocity_m_s);
-      run.curve_peak_force_n.push_back(fitting::simulate(run.model, run.fit.params, impact).grf_n.maxCoeff());
-    }
+    const fitting::TablePeakCurve curve = fitting::table_peak_curve(run.trials, options, run.fit.params);
+    run.curve_velocity_m_s = curve.velocity_m_s;
+    run.curve_peak_force_n = curve.peak_force_n;
 
     report::OutputSet out;
     if (args->diagnose && run.trials.size() >= 3) {

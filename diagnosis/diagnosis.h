@@ -128,6 +128,7 @@
 #include "capture/session.h"
 #include "diagnosis/structure.h"
 #include "fitting/fit.h"
+#include "fitting/table_fit.h"
 #include "forceplate/forceplate.h"
 #include "reconstruction/reconstruction.h"
 #include "trial/trial.h"

@@ -1,5 +1,5 @@
 #pragma once
-// Co-simulation of a fitted landing mat (issue 6): a foot or impactor whose
+// Co-simulation of a fitted landing mat: a foot or impactor whose
 // motion another simulator owns (a musculoskeletal model, a game engine, a
 // MuJoCo body) steps the mat with its contact position and velocity and gets
 // back the vertical force on it and the ground reaction force (GRF) under the

@@ -84,6 +84,113 @@ FitCore fit_core(const std::vector<const TrialData*>& train, const FitOptions& o
   return fc;
 }
 
+// The fixed parameters' estimates (for completeness), after the free ones;
+// with the masses free, m2 follows m1 (their total fixed).
+void add_fixed_estimates(const FitOptions& options, FitResult* res_ptr) {
+  FitResult& res = *res_ptr;
+  const ModelKind shape = options.model == ModelKind::Model5 ? ModelKind::Model4 : options.model;
+  for (const auto& name : parameter_names(shape, true)) {
+    const bool is_free = std::any_of(res.estimates.begin(), res.estimates.end(),
+                                     [&](const ParameterEstimate& e) { return e.name == name; });
+    if (is_free) continue;
+    ParameterEstimate e;
+    e.name = name;
+    e.value = get_parameter(res.params, name);
+    e.free = false;
+    e.se = 0.0;
+    e.rel_se = 0.0;
+    res.estimates.push_back(e);
+  }
+  if (options.masses_free && (shape == ModelKind::Model3 || shape == ModelKind::Model4)) {
+    for (auto& e : res.estimates)
+      if (e.name == "m2_kg") {
+        e.free = true;  // follows m1 (total fixed)
+        for (const auto& f : res.estimates)
+          if (f.name == "m1_kg") { e.se = f.se; e.rel_se = f.se / std::max(e.value, 1e-12); }
+      }
+  }
+}
+
+// Every trial predicted (each its own simulation: in parallel, over
+// `threads`); the training trials' clock shifts from the joint optimum. A
+// rejected trial whose data cannot be predicted (a force record without a
+// contact) is left out with a warning: it never sinks the fit of the
+// accepted ones.
+void predict_trials(const std::vector<TrialData>& trials, const FitOptions& options, const FitCore& fc,
+                    const std::vector<double>& shift_se, FitResult* res_ptr) {
+  FitResult& res = *res_ptr;
+  const Optimum& best = fc.search.best;
+  std::vector<TrialReport> predicted(trials.size());
+  std::vector<std::string> unpredicted(trials.size());
+  {
+    std::vector<std::exception_ptr> failures(trials.size());
+    // (A custom simulator is not assumed thread-safe.)
+    parallel_for(trials.size(), options.simulator ? 1 : options.threads, [&](size_t q) {
+      try {
+        predicted[q] = predict(trials[q], res.params, options);
+      } catch (const std::exception& e) {
+        if (trials[q].accepted) failures[q] = std::current_exception();
+        else unpredicted[q] = e.what();
+      } catch (...) {
+        failures[q] = std::current_exception();
+      }
+    });
+    for (const auto& f : failures)
+      if (f) std::rethrow_exception(f);
+  }
+  for (size_t q = 0; q < trials.size(); ++q) {
+    const TrialData& t = trials[q];
+    if (!unpredicted[q].empty()) {
+      res.warnings.push_back(fmt::format("rejected trial {} not predicted: {}", t.id, unpredicted[q]));
+      continue;
+    }
+    TrialReport rep = std::move(predicted[q]);
+    rep.train = std::find(res.train_ids.begin(), res.train_ids.end(), t.id) != res.train_ids.end();
+    if (rep.train) {
+      // The training trials' shifts come from the joint optimum, with the
+      // joint (unconditional) standard error.
+      size_t k = 0, b = 0;
+      for (; k < fc.preps.size(); ++k) {
+        if (fc.preps[k].data->id == t.id) break;
+        if (fc.preps[k].shifted()) ++b;
+      }
+      if (k < fc.preps.size() && fc.preps[k].shifted()) {
+        rep.contact_shift_s = best.shifts[k];
+        if (b < shift_se.size()) rep.contact_shift_se_s = shift_se[b];
+      }
+    }
+    res.trials.push_back(std::move(rep));
+  }
+}
+
+// Each accepted trial left out: refitted from the full fit's optimum
+// (multi-start still runs) and predicted.
+void leave_each_out(const std::vector<TrialData>& trials, const FitOptions& options, std::atomic<long>* evals,
+                    FitResult* res_ptr) {
+  FitResult& res = *res_ptr;
+  std::vector<const TrialData*> acc;
+  for (const auto& t : trials)
+    if (t.accepted) acc.push_back(&t);
+  if (acc.size() < 2) {
+    res.warnings.push_back("leave-one-trial-out needs at least two accepted trials");
+  } else {
+    for (const TrialData* held : acc) {
+      std::vector<const TrialData*> tr;
+      for (const TrialData* t : acc)
+        if (t != held) tr.push_back(t);
+      FitOptions o = options;
+      o.initial = res.params;  // start near the full fit; multi-start still runs
+      std::vector<std::string> w;
+      FitCore c = fit_core(tr, o, evals, &w);
+      LeaveOneOutEntry e;
+      e.held_out = held->id;
+      e.params = c.params;
+      e.comparison = predict(*held, c.params, options).comparison;
+      res.leave_one_out.push_back(e);
+    }
+  }
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------
@@ -255,75 +362,8 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
   covariance(best, fc.space, options, res.params, &res.estimates, &shift_se, &res.warnings);
   alternatives(fc.search, fc.space, options, &res);
   res.channels = channel_shares(fc.preps, best.residuals, &res.warnings);
-  {
-    const ModelKind shape = options.model == ModelKind::Model5 ? ModelKind::Model4 : options.model;
-    for (const auto& name : parameter_names(shape, true)) {
-      const bool is_free = std::any_of(res.estimates.begin(), res.estimates.end(),
-                                       [&](const ParameterEstimate& e) { return e.name == name; });
-      if (is_free) continue;
-      ParameterEstimate e;
-      e.name = name;
-      e.value = get_parameter(res.params, name);
-      e.free = false;
-      e.se = 0.0;
-      e.rel_se = 0.0;
-      res.estimates.push_back(e);
-    }
-    if (options.masses_free && (shape == ModelKind::Model3 || shape == ModelKind::Model4)) {
-      for (auto& e : res.estimates)
-        if (e.name == "m2_kg") {
-          e.free = true;  // follows m1 (total fixed)
-          for (const auto& f : res.estimates)
-            if (f.name == "m1_kg") { e.se = f.se; e.rel_se = f.se / std::max(e.value, 1e-12); }
-        }
-    }
-  }
-
-  // Every trial predicted (each its own simulation: in parallel, over
-  // `threads`). A rejected trial whose data cannot be predicted (a force
-  // record without a contact) is left out with a warning: it never sinks
-  // the fit of the accepted ones.
-  std::vector<TrialReport> predicted(trials.size());
-  std::vector<std::string> unpredicted(trials.size());
-  {
-    std::vector<std::exception_ptr> failures(trials.size());
-    // (A custom simulator is not assumed thread-safe.)
-    parallel_for(trials.size(), options.simulator ? 1 : options.threads, [&](size_t q) {
-      try {
-        predicted[q] = predict(trials[q], res.params, options);
-      } catch (const std::exception& e) {
-        if (trials[q].accepted) failures[q] = std::current_exception();
-        else unpredicted[q] = e.what();
-      } catch (...) {
-        failures[q] = std::current_exception();
-      }
-    });
-    for (const auto& f : failures)
-      if (f) std::rethrow_exception(f);
-  }
-  for (size_t q = 0; q < trials.size(); ++q) {
-    const TrialData& t = trials[q];
-    if (!unpredicted[q].empty()) {
-      res.warnings.push_back(fmt::format("rejected trial {} not predicted: {}", t.id, unpredicted[q]));
-      continue;
-    }
-    TrialReport rep = std::move(predicted[q]);
-    rep.train = std::find(res.train_ids.begin(), res.train_ids.end(), t.id) != res.train_ids.end();
-    if (rep.train) {
-      // The training trials' shifts come from the joint optimum, with the
-      // joint (unconditional) standard error.
-      size_t k = 0, b = 0;
-      for (; k < fc.preps.size(); ++k) {
-        if (fc.preps[k].data->id == t.id) break;
-        if (fc.preps[k].shifted()) ++b;
-      }
-      if (k < fc.preps.size() && fc.preps[k].shifted()) {
-        rep.contact_shift_s = best.shifts[k];
-        if (b < shift_se.size()) rep.contact_shift_se_s = shift_se[b];
-      }
-    }
-    res.trials.push_back(std::move(rep));
-  }
+  add_fixed_estimates(options, &res);
+  predict_trials(trials, options, fc, shift_se, &res);
 
   if (options.sensitivity) {
     Impact imp = fc.preps.front().impact;
@@ -332,29 +372,7 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
     res.sensitivity = sensitivity_table(options, res.params, imp);
   }
 
-  if (options.leave_one_out) {
-    std::vector<const TrialData*> acc;
-    for (const auto& t : trials)
-      if (t.accepted) acc.push_back(&t);
-    if (acc.size() < 2) {
-      res.warnings.push_back("leave-one-trial-out needs at least two accepted trials");
-    } else {
-      for (const TrialData* held : acc) {
-        std::vector<const TrialData*> tr;
-        for (const TrialData* t : acc)
-          if (t != held) tr.push_back(t);
-        FitOptions o = options;
-        o.initial = res.params;  // start near the full fit; multi-start still runs
-        std::vector<std::string> w;
-        FitCore c = fit_core(tr, o, &evals, &w);
-        LeaveOneOutEntry e;
-        e.held_out = held->id;
-        e.params = c.params;
-        e.comparison = predict(*held, c.params, options).comparison;
-        res.leave_one_out.push_back(e);
-      }
-    }
-  }
+  if (options.leave_one_out) leave_each_out(trials, options, &evals, &res);
   res.evaluations = evals.load();
   res.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   return res;

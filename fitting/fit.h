@@ -66,9 +66,8 @@
 // stiffness and damping (from the exact derivatives: the peak's elasticity
 // carried as a power law; a custom simulator is re-run instead).
 //
-// Table mode: when only per-trial summaries exist (velocity, maximum
-// deformation, peak force: the paper's Table 1), fit_table matches the
-// simulated peak force and maximum impactor travel.
+// Table mode (per-trial summaries only: the paper's Table 1) is
+// fitting/table_fit.h.
 #include <Eigen/Core>
 #include <functional>
 #include <limits>
@@ -170,9 +169,8 @@ struct FitOptions {
                                        //   (Model 5) splits its derivatives over them instead
   int first_stage_iterations = 12;     // every start runs this many iterations first;
   double follow_factor = 30.0;         //   those within this factor of the best cost go on
-                                       //   (3 cut a run heading for a Maxwell arm's true basin,
-                                       //   cost 40 at the end, at 3.3e5 after the first stage
-                                       //   while a dashpot basin led at 4.2e4)
+                                       //   (a run heading for the true basin may still trail
+                                       //   the leader by this much after the first stage)
   int follow_chunk_iterations = 10;    // the followed runs go on in chunks of this many iterations;
   double drop_factor = 3.0;            //   after each, a run above this factor of the best cost
   double drop_gain = 0.3;              //   that gained less than this fraction in the chunk stops
@@ -279,45 +277,5 @@ Eigen::VectorXd residuals(const std::vector<TrialData>& trials, const MatParams&
 // free parameters' names in column order.
 Eigen::MatrixXd residual_jacobian(const std::vector<TrialData>& trials, const MatParams& params,
                                   const FitOptions& options, std::vector<std::string>* names = nullptr);
-
-// ---------------------------------------------------------------------------
-// Table mode.
-struct TableTrial {
-  std::string id;
-  double impact_velocity_m_s = 0.0;
-  double max_deformation_m = std::numeric_limits<double>::quiet_NaN();  // NaN = not used
-  double peak_force_n = 0.0;
-};
-
-struct TableFitOptions {
-  ModelKind model = ModelKind::Model1;
-  MatParams base;                    // parameters not fitted (masses, other elements)
-  std::vector<std::string> free = {"k1_n_m", "r1_n_s_m"};  // fitted (log scale)
-  std::vector<std::string> train_ids;  // empty: the median-velocity trial
-  double impactor_mass_kg = 24.0;
-  double gravity_m_s2 = 9.81;
-  double peak_noise_n = 50.0;          // scales of the two residuals
-  double deformation_noise_m = 0.002;
-  int starts = 6;
-  std::uint64_t seed = 1;
-};
-
-struct TableTrialReport {
-  std::string id;
-  bool train = false;
-  double impact_velocity_m_s = 0.0;
-  double peak_force_n = 0.0, simulated_peak_force_n = 0.0, peak_force_pct_diff = 0.0;
-  double max_deformation_m = 0.0, simulated_max_deformation_m = 0.0;
-};
-
-struct TableFitResult {
-  MatParams params;                  // the best optimum
-  std::vector<MatParams> alternatives;  // distinct optima that fit as well (ambiguity)
-  std::vector<TableTrialReport> trials;
-  std::vector<std::string> warnings;
-  double cost = 0.0;
-};
-
-TableFitResult fit_table(const std::vector<TableTrial>& trials, const TableFitOptions& options);
 
 }  // namespace dropfit::fitting

@@ -133,22 +133,19 @@
 // intervals of at most 0.01 (lambda x output_dt)^2 of its largest mean,
 // with the same cells pressed, drops the creep limit; and from 0.1 s on
 // (long contacts only: a typical impact is over by then, so its stepping,
-// and the fitter's derivatives around it, is as before), one with at most
+// and the fitter's derivatives around it, are unaffected), one with at most
 // 1e-3 of it steps at twice max_step_s, as does every pressed interval
 // where elements 2 and 3 are lightly damped (r / m <= 3000 1/s). The
-// decisions use scalar parts (the same steps for a Jet). The first output interval is stepped 8 times finer (the face
-// lands at full speed on light cells). At the paper's parameters: 0.1
-// ms, 3070 steps per 0.3 s (unchanged); over the fitter's bounds (k
-// 2e3..3e7 N/m, r 3..3e4 N s/m, each element alone) at most 3 592 steps
-// in a scan of 4 764 points (8 102 before the slow-load rules), within 0.5
-// % of the peak and 1 % RMS of a 1 us reference except where the layers
-// are heavily damped (r >~ 1.2e4 N s/m: the explicit shear's splitting
-// error at landing, up to 1.4 % of peak and 1.3 % RMS; docs/models.md). The cubic term (k1_cubic) is explicit: keep max_step_s small
-// enough for its tangent stiffness. Every element applies equal and
+// decisions use scalar parts (the same steps for a Jet). The first output
+// interval is stepped 8 times finer (the face lands at full speed on light
+// cells). The explicit shear's splitting error grows where the layers are
+// heavily damped (at landing); steps and accuracy against a 1 us reference
+// over the fitter's bounds are in docs/models.md. The cubic term (k1_cubic)
+// is explicit: keep max_step_s small enough for its tangent stiffness. Every element applies equal and
 // opposite forces, so the GRF impulse balances the impactor's and the mat's
-// momentum. Nothing is allocated inside the time loop. The former explicit
-// leapfrog (its step capped by the stiffest element: 3.3 us at the stiff,
-// damped corner) is kept as simulate_model5_leapfrog, the reference.
+// momentum. Nothing is allocated inside the time loop. An independent
+// explicit scheme (leapfrog, outside the library: bench/model5_leapfrog.h)
+// serves as the reference in tests and benchmarks.
 #include <Eigen/Core>
 
 #include "fitting/models.h"
@@ -254,13 +251,5 @@ Model5Result simulate_model5_detailed(const MatParams& params, const Model5Geome
 // The same, as a black box (Simulation as Models 1-4 return it).
 Simulation simulate_model5(const MatParams& params, const Model5Geometry& geometry,
                            const Impact& impact);
-
-// The former explicit scheme (leapfrog, every force explicit, its step
-// capped by the stiffest element's stability: 3.4 us at the fitter's stiff,
-// damped bounds). Kept as the reference solution (at a tiny max_step_s) and
-// for the before/after benchmark. Samples at i * output_dt_s (ignores
-// first_output_s).
-Model5Result simulate_model5_leapfrog(const MatParams& params, const Model5Geometry& geometry,
-                                      const Impact& impact);
 
 }  // namespace dropfit::fitting

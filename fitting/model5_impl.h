@@ -137,6 +137,19 @@ Layout make_layout(const Model5ParamsT<double>& params, const Model5Geometry& ge
 // Samples a simulation produces for `impact`: t = first_output_s + i * output_dt_s <= duration_s.
 int sample_count(const Impact& impact);
 
+// The checks every Model 5 simulation starts with: finite, non-negative
+// elements, positive masses, a geometry the grid can be built on, a usable
+// output timing (throws Error naming the offending value).
+void validate(const MatParams& params, const Model5Geometry& geometry, const Impact& impact);
+
+// Length of the overlap of [a0, a1] and [b0, b1] (0 when disjoint), and its centre.
+double overlap(double a0, double a1, double b0, double b1, double* centre);
+
+// Bilinear weights of position p among cell centres c0 + i * d, i = 0..n-1,
+// clamped to the outer centres: p lies between centres i0 and i0 + 1 with
+// weight (1 - f) and f.
+void bracket(double p, double c0, double d, int n, int* i0, double* f);
+
 // A 3 x 3 matrix of any scalar (no Eigen traits needed).
 template <typename T>
 struct Small3 {

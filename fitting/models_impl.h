@@ -642,8 +642,8 @@ void run_model(const Layout& L, const ParamsT<T>& p, const Impact& imp, bool use
   // An oscillation needs the step for accuracy (RK4's phase error grows
   // as (h w)^4); a decay only for stability (h d <= 2.8) and for the
   // quasi-static force it leaves, which h d <= 1 keeps within 0.001 % of
-  // the peak (docs/models.md). One bound on w + d, as before, took half a
-  // loop's time where the fitter tried heavily damped layers.
+  // the peak (docs/models.md). Separate bounds keep heavily damped layers,
+  // which the fitter tries, from shortening the step as a stiff one would.
   double k_sum = 0.0, r_sum = 0.0, m_min = imp.mass_kg;
   for (int j = 0; j < L.n_elem; ++j) {
     k_sum += std::abs(scalar_of(p.k[j]));

@@ -48,24 +48,17 @@ Optimum run_ceres(const std::vector<Prepared>& preps, const ParamSpace& space, c
   // spends iterations on rejected steps before it shrinks back).
   if (radius0 > 0.0) so.initial_trust_region_radius = radius0;
   // With bounds, Ceres follows every trust-region step by a projected Armijo
-  // line search (its own source calls it "not terribly effective", ceres
-  // issue #187). With its default cubic interpolation every trial point
+  // line search. With its default cubic interpolation every trial point
   // costs a Jacobian; quadratic interpolation needs only the cost, a
-  // simulation in doubles (Models 1-4: same optima on the six validation
-  // sessions, 23-24 of 27 unseen sessions named right either way, the
-  // misses being which basin a run falls into, not the interpolation).
-  // Switching the line search off (for Models 1-4 too) ended Maxwell-arm
-  // and unloading-damping refits in far worse optima (held-out 3.5 -> 89
-  // noise SDs on one unseen session). Model 5 goes without: from its warm
-  // start, 169 Jacobians and 231 simulations in 42 iterations against 37
-  // and 42 without, ending at a lower cost.
+  // simulation in doubles, and finds the same optima. The line search stays
+  // on for Models 1-4: without it, refits with an effect freed (a Maxwell
+  // arm, unloading damping) end in far worse optima. Model 5 goes without:
+  // from its warm start it converges in fewer Jacobians and simulations, at
+  // a lower cost (docs/models.md, "Search settings").
   so.line_search_interpolation_type = ceres::QUADRATIC;
   // At most 3 trial points (Ceres' default is 20): when the projected step
-  // gives no sufficient decrease the search shrank it up to 20 times, each
-  // a simulation, and the line search took 44 % of a loop's time; after 3
-  // the trust region judges the step itself. Measured on 67 unseen
-  // sessions: the same effects named with 3, 6 and 20, the loop's mean
-  // run 1.30 -> 1.06 s.
+  // gives no sufficient decrease the search would shrink it up to 20 times,
+  // each a simulation; after 3 the trust region judges the step itself.
   so.max_num_line_search_step_size_iterations = 3;
   if (o.model == ModelKind::Model5) so.max_num_line_search_step_size_iterations = 0;
   ceres::Solver::Summary summary;
@@ -100,89 +93,97 @@ double chi2_quantile_95(int dof) {
 
 }  // namespace
 
-// Multi-start: every candidate screened by cost; Levenberg-Marquardt from
-// the best candidate of each spring ordering and the best overall, in
-// parallel.
-Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, const FitOptions& o, double k_eff,
-                std::atomic<long>* evals, std::vector<std::string>* warnings, std::string* used) {
+namespace {
+
+// Simulated annealing from the best candidate, over the whole box; the
+// Jacobian at its optimum (or a Ceres polish from it) for the covariance.
+Search anneal_search(const std::vector<Prepared>& preps, const ParamSpace& space, const FitOptions& o,
+                     const std::vector<Eigen::VectorXd>& cands, std::atomic<long>* evals,
+                     std::vector<std::string>* warnings, std::string* used) {
   const int n = space.size();
-  const std::vector<Eigen::VectorXd> cands = candidate_starts(space, o, k_eff, *preps.front().data);
-
-  if (o.optimizer == Optimizer::Annealing) {
-    *used = "annealing (Corana et al. 1987)";
-    Eigen::VectorXd lo(n), hi(n);
-    for (int j = 0; j < n; ++j) {
-      lo[j] = space.free[j].lower;
-      hi[j] = space.free[j].upper;
-    }
-    auto f = [&](const Eigen::VectorXd& u) { return cost_of(preps, space, o, space.to_mat(u.data()), evals); };
-    Eigen::VectorXd x0 = cands.front();
-    double f0 = f(x0);
-    for (const auto& c : cands) {
-      const double fc = f(c);
-      if (fc < f0) { f0 = fc; x0 = c; }
-    }
-    const AnnealResult ar = anneal(f, x0, lo, hi, o.anneal);
-    if (!ar.converged) warnings->push_back("annealing stopped at its evaluation limit before converging");
-    Search s;
-    s.best.u = ar.x;
-    s.best.cost = ar.f;
-    if (o.polish_annealing) {
-      *used += " + Ceres polish";
-      Optimum pol = run_ceres(preps, space, o, ar.x, evals, true);
-      if (pol.cost <= s.best.cost) {
-        s.best = pol;
-        return s;
-      }
-    }
-    // Jacobian at the annealing optimum, for the covariance.
-    FitOptions one = o;
-    one.max_iterations = 0;
-    Optimum jac = run_ceres(preps, space, one, s.best.u, evals, true);
-    jac.u = s.best.u;
-    jac.cost = s.best.cost;
-    s.best = jac;
-    return s;
+  *used = "annealing (Corana et al. 1987)";
+  Eigen::VectorXd lo(n), hi(n);
+  for (int j = 0; j < n; ++j) {
+    lo[j] = space.free[j].lower;
+    hi[j] = space.free[j].upper;
   }
+  auto f = [&](const Eigen::VectorXd& u) { return cost_of(preps, space, o, space.to_mat(u.data()), evals); };
+  Eigen::VectorXd x0 = cands.front();
+  double f0 = f(x0);
+  for (const auto& c : cands) {
+    const double fc = f(c);
+    if (fc < f0) { f0 = fc; x0 = c; }
+  }
+  const AnnealResult ar = anneal(f, x0, lo, hi, o.anneal);
+  if (!ar.converged) warnings->push_back("annealing stopped at its evaluation limit before converging");
+  Search s;
+  s.best.u = ar.x;
+  s.best.cost = ar.f;
+  if (o.polish_annealing) {
+    *used += " + Ceres polish";
+    Optimum pol = run_ceres(preps, space, o, ar.x, evals, true);
+    if (pol.cost <= s.best.cost) {
+      s.best = pol;
+      return s;
+    }
+  }
+  // Jacobian at the annealing optimum, for the covariance.
+  FitOptions one = o;
+  one.max_iterations = 0;
+  Optimum jac = run_ceres(preps, space, one, s.best.u, evals, true);
+  jac.u = s.best.u;
+  jac.cost = s.best.cost;
+  s.best = jac;
+  return s;
+}
 
-  *used = "ceres (Levenberg-Marquardt, multi-start over spring orderings)";
-  // A given start with starts == 1 (a warm start, e.g. Model 5 from Model
-  // 4's optimum) runs alone: the other candidates are not screened.
-  const bool warm_only = o.initial.k1_n_m > 0.0 && o.starts == 1;
+// The candidates Levenberg-Marquardt runs from (indices into cands), every
+// candidate screened by cost: the best of each spring ordering, then the
+// best overall up to `starts`; a given start always.
+std::vector<int> choose_runs(const std::vector<Prepared>& preps, const ParamSpace& space, const FitOptions& o,
+                             const std::vector<Eigen::VectorXd>& cands, bool warm_only, std::atomic<long>* evals) {
   std::vector<std::pair<double, int>> ranked;
   for (size_t i = 0; i < cands.size() && !warm_only; ++i)
     ranked.push_back({cost_of(preps, space, o, space.to_mat(cands[i].data()), evals), static_cast<int>(i)});
   std::vector<int> order;
   if (warm_only) {
     order.push_back(0);
-  } else {
-    std::sort(ranked.begin(), ranked.end());
-    std::vector<int> seen_orderings;
-    if (o.initial.k1_n_m > 0.0 && !o.every_ordering) order.push_back(0);
-    for (const auto& [c, i] : ranked) {  // the best of each ordering
-      if (!std::isfinite(c) || !o.every_ordering) break;
-      const int ord = ordering_of(space, cands[i]);
-      if (std::find(seen_orderings.begin(), seen_orderings.end(), ord) != seen_orderings.end()) continue;
-      seen_orderings.push_back(ord);
-      order.push_back(i);
-    }
-    // and the best overall, up to `starts` runs beyond two (at least one
-    // run from every ordering whatever `starts` says).
-    for (const auto& [c, i] : ranked) {
-      const int extra = o.every_ordering ? 2 : 0;
-      if (static_cast<int>(order.size()) >= std::max(o.starts, static_cast<int>(seen_orderings.size()) + extra)) break;
-      if (std::isfinite(c) && std::find(order.begin(), order.end(), i) == order.end()) order.push_back(i);
-    }
-    if (o.initial.k1_n_m > 0.0 && std::find(order.begin(), order.end(), 0) == order.end()) order.push_back(0);
+    return order;
   }
-  // Two stages: a few iterations from every start, then to convergence
-  // from the ones that came within reach of the best (a basin whose start
-  // is still follow_factor times worse than the best after the first stage is not followed:
-  // from a start inside the right basin Levenberg-Marquardt converges in a
-  // handful of iterations, while the far corners cost the most simulation).
-  std::vector<Optimum> runs(order.size());
-  // A run continued from an earlier stage or chunk keeps its trust region.
-  auto in_parallel = [&](const std::vector<size_t>& which, const FitOptions& oo, bool from_runs) {
+  std::sort(ranked.begin(), ranked.end());
+  std::vector<int> seen_orderings;
+  if (o.initial.k1_n_m > 0.0 && !o.every_ordering) order.push_back(0);
+  for (const auto& [c, i] : ranked) {  // the best of each ordering
+    if (!std::isfinite(c) || !o.every_ordering) break;
+    const int ord = ordering_of(space, cands[i]);
+    if (std::find(seen_orderings.begin(), seen_orderings.end(), ord) != seen_orderings.end()) continue;
+    seen_orderings.push_back(ord);
+    order.push_back(i);
+  }
+  // and the best overall, up to `starts` runs beyond two (at least one
+  // run from every ordering whatever `starts` says).
+  for (const auto& [c, i] : ranked) {
+    const int extra = o.every_ordering ? 2 : 0;
+    if (static_cast<int>(order.size()) >= std::max(o.starts, static_cast<int>(seen_orderings.size()) + extra)) break;
+    if (std::isfinite(c) && std::find(order.begin(), order.end(), i) == order.end()) order.push_back(i);
+  }
+  if (o.initial.k1_n_m > 0.0 && std::find(order.begin(), order.end(), 0) == order.end()) order.push_back(0);
+  return order;
+}
+
+// The Levenberg-Marquardt runs of a multi-start, one per chosen candidate.
+struct MultiStart {
+  const std::vector<Prepared>& preps;
+  const ParamSpace& space;
+  const FitOptions& o;
+  const std::vector<Eigen::VectorXd>& cands;
+  const std::vector<int>& order;
+  std::atomic<long>* evals;
+  std::vector<Optimum> runs;
+
+  // Runs `which` in parallel with the options `oo`, from their candidates
+  // or (from_runs) on from where they stopped, keeping the trust region.
+  void in_parallel(const std::vector<size_t>& which, const FitOptions& oo, bool from_runs) {
     const int threads = std::max(1, std::min<int>(o.threads, static_cast<int>(which.size())));
     // The threads the runs leave free go to each run's derivatives (Model 5).
     FitOptions inner = oo;
@@ -195,52 +196,87 @@ Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, con
       if (!from_runs || r.cost <= runs[k].cost) runs[k] = std::move(r);
       else runs[k].converged = true;  // no progress from here
     });
-  };
-  std::vector<size_t> all(order.size());
-  std::iota(all.begin(), all.end(), 0);
-  FitOptions first_stage = o;
-  first_stage.max_iterations = std::min(o.max_iterations, o.first_stage_iterations);
-  in_parallel(all, first_stage, false);
-  // A protected given start (FitOptions::protect_initial) goes on whatever
-  // it shows, and does not set the lead that cuts the others.
-  const bool protect = o.protect_initial && o.initial.k1_n_m > 0.0 && !warm_only;
-  auto is_initial = [&](size_t k) { return protect && order[k] == 0; };
-  double lead = std::numeric_limits<double>::infinity();
-  for (size_t k = 0; k < runs.size(); ++k)
-    if (!is_initial(k)) lead = std::min(lead, runs[k].cost);
-  std::vector<size_t> follow;
-  for (size_t k = 0; k < runs.size(); ++k)
-    if (std::isfinite(runs[k].cost) && (runs[k].cost <= o.follow_factor * lead || is_initial(k))) follow.push_back(k);
+  }
+
+  // Two stages: a few iterations from every start, then to convergence
+  // from the ones that came within reach of the best (a basin whose start
+  // is still follow_factor times worse than the best after the first stage
+  // is not followed: from a start inside the right basin
+  // Levenberg-Marquardt converges in a handful of iterations, while the
+  // far corners cost the most simulation).
+  void run(bool warm_only) {
+    runs.assign(order.size(), Optimum{});
+    std::vector<size_t> all(order.size());
+    std::iota(all.begin(), all.end(), 0);
+    FitOptions first_stage = o;
+    first_stage.max_iterations = std::min(o.max_iterations, o.first_stage_iterations);
+    in_parallel(all, first_stage, false);
+    // A protected given start (FitOptions::protect_initial) goes on whatever
+    // it shows, and does not set the lead that cuts the others.
+    const bool protect = o.protect_initial && o.initial.k1_n_m > 0.0 && !warm_only;
+    auto is_initial = [&](size_t k) { return protect && order[k] == 0; };
+    double lead = std::numeric_limits<double>::infinity();
+    for (size_t k = 0; k < runs.size(); ++k)
+      if (!is_initial(k)) lead = std::min(lead, runs[k].cost);
+    std::vector<size_t> follow;
+    for (size_t k = 0; k < runs.size(); ++k)
+      if (std::isfinite(runs[k].cost) && (runs[k].cost <= o.follow_factor * lead || is_initial(k)))
+        follow.push_back(k);
+    if (o.max_iterations <= first_stage.max_iterations) follow.clear();
+    follow_in_chunks(follow);
+  }
+
   // Then in chunks: a run that stays far behind the best while it crawls
   // (gaining little per chunk) is dropped; the others go on until Ceres
   // stops them on a tolerance or the iteration limit. Runs in a wrong basin
-  // typically crawl along a bound for 30-90 iterations, gaining a few per
-  // cent; a run that has entered its basin gains orders of magnitude.
-  // (The follow stage has max_iterations of its own after the first stage.)
-  int done = 0;
-  std::vector<size_t> active = follow;
-  if (o.max_iterations <= first_stage.max_iterations) active.clear();
-  while (!active.empty() && done < o.max_iterations) {
-    FitOptions chunk = o;
-    // One run left has nothing to be dropped for: it goes on in one piece.
-    chunk.max_iterations = active.size() > 1 ? std::min(std::max(1, o.follow_chunk_iterations), o.max_iterations - done)
-                                             : o.max_iterations - done;
-    std::vector<double> before;
-    for (size_t k : active) before.push_back(runs[k].cost);
-    in_parallel(active, chunk, true);
-    done += chunk.max_iterations;
-    double best_now = std::numeric_limits<double>::infinity();
-    for (const auto& r : runs) best_now = std::min(best_now, r.cost);
-    std::vector<size_t> next;
-    for (size_t i = 0; i < active.size(); ++i) {
-      const Optimum& r = runs[active[i]];
-      if (r.converged || !std::isfinite(r.cost)) continue;
-      const double gain = (before[i] - r.cost) / std::max(r.cost, 1e-300);
-      if (r.cost > o.drop_factor * best_now && gain < o.drop_gain) continue;
-      next.push_back(active[i]);
+  // crawl along a bound, gaining a few per cent a chunk; a run that has
+  // entered its basin gains orders of magnitude. (The follow stage has
+  // max_iterations of its own after the first stage.)
+  void follow_in_chunks(std::vector<size_t> active) {
+    int done = 0;
+    while (!active.empty() && done < o.max_iterations) {
+      FitOptions chunk = o;
+      // One run left has nothing to be dropped for: it goes on in one piece.
+      chunk.max_iterations = active.size() > 1
+                                 ? std::min(std::max(1, o.follow_chunk_iterations), o.max_iterations - done)
+                                 : o.max_iterations - done;
+      std::vector<double> before;
+      for (size_t k : active) before.push_back(runs[k].cost);
+      in_parallel(active, chunk, true);
+      done += chunk.max_iterations;
+      double best_now = std::numeric_limits<double>::infinity();
+      for (const auto& r : runs) best_now = std::min(best_now, r.cost);
+      std::vector<size_t> next;
+      for (size_t i = 0; i < active.size(); ++i) {
+        const Optimum& r = runs[active[i]];
+        if (r.converged || !std::isfinite(r.cost)) continue;
+        const double gain = (before[i] - r.cost) / std::max(r.cost, 1e-300);
+        if (r.cost > o.drop_factor * best_now && gain < o.drop_gain) continue;
+        next.push_back(active[i]);
+      }
+      active = std::move(next);
     }
-    active = std::move(next);
   }
+};
+
+}  // namespace
+
+// Multi-start: every candidate screened by cost; Levenberg-Marquardt from
+// the best candidate of each spring ordering and the best overall, in
+// parallel.
+Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, const FitOptions& o, double k_eff,
+                std::atomic<long>* evals, std::vector<std::string>* warnings, std::string* used) {
+  const std::vector<Eigen::VectorXd> cands = candidate_starts(space, o, k_eff, *preps.front().data);
+  if (o.optimizer == Optimizer::Annealing) return anneal_search(preps, space, o, cands, evals, warnings, used);
+
+  *used = "ceres (Levenberg-Marquardt, multi-start over spring orderings)";
+  // A given start with starts == 1 (a warm start, e.g. Model 5 from Model
+  // 4's optimum) runs alone: the other candidates are not screened.
+  const bool warm_only = o.initial.k1_n_m > 0.0 && o.starts == 1;
+  const std::vector<int> order = choose_runs(preps, space, o, cands, warm_only, evals);
+  MultiStart ms{preps, space, o, cands, order, evals, {}};
+  ms.run(warm_only);
+  const std::vector<Optimum>& runs = ms.runs;
 
   Search s;
   int failed = 0, best_k = -1;

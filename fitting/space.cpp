@@ -67,10 +67,9 @@ ParamSpace make_space(const FitOptions& o, double k_eff) {
   // A stiffening top element (k1 x + k1_cubic x^3) meets the floor with
   // its secant at the largest travel, k1 + k1_cubic x^2, not with its
   // linear part: a mat whose force at depth is mostly the cubic term has a
-  // linear k1 far below the floor (seed 917: k1 21 kN/m against a floor of
-  // 23 kN/m; held at the floor, the fit's training cost was 1727 against
-  // 240 at the truth). Its linear part keeps the absolute floor; its starts
-  // stay where they were.
+  // linear k1 below the floor, and holding it at the floor misfits the mat
+  // (docs/models.md, "Search settings"). Its linear part keeps the
+  // absolute floor; its start range is the series springs'.
   const bool stiffening =
       std::find(o.free_effects.begin(), o.free_effects.end(), "k1_cubic_n_m3") != o.free_effects.end();
   for (const auto& name : parameter_names(shape, false)) {
@@ -104,9 +103,9 @@ ParamSpace make_space(const FitOptions& o, double k_eff) {
       // The arm stands beside element 1, not in the series: the series
       // springs' floor (a fraction of the effective stiffness) does not
       // apply, and a weak arm (a few per cent of k1) is what a slightly
-      // rate-dependent foam shows. Its floor is the absolute one. (With the
-      // series floor, arms of 27-30 kN/m on mats of k_eff near 1e5 N/m sat on
-      // the bound and were not named: three misses in 40 unseen sessions.)
+      // rate-dependent foam shows. Its floor is the absolute one: with the
+      // series floor, such arms sit on the bound and are not named
+      // (docs/models.md, "Search settings").
       s.free.push_back(log_param(name, o.k_min_n_m, k_hi));
     } else if (name == "maxwell_tau_s") {
       s.free.push_back(log_param(name, 1e-3, 0.3));

@@ -119,8 +119,8 @@ std::vector<Eigen::VectorXd> candidate_starts(const ParamSpace& space, const Fit
           // With an effect free, the same springs with the effect present
           // too: a start holding it absent sits on its bound, and the run
           // from there can settle in a basin the effect's own parameters
-          // never leave (an elastic unloading asymmetry of 0.20: cost 8322
-          // from those starts, 39.7 from the truth's basin).
+          // never leave (an elastic unloading asymmetry: docs/models.md,
+          // "Search settings").
           if (!effect_mid.empty()) {
             Eigen::VectorXd u = space.from_mat(g);
             for (const auto& [j, v] : effect_mid) u[j] = v;

@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "fitting/fit.h"
+#include "fitting/table_fit.h"
 #include "fitting/models.h"
 #include "report/session_report.h"
 
@@ -29,13 +30,7 @@ std::vector<fitting::TableTrial> parse_impact_table(const std::string& text, con
 
 // One held-out impact: the model fitted to every other row, then asked for
 // this one's peak force from its velocity.
-struct TableHeldOut {
-  std::string id;
-  fitting::MatParams params;
-  double impact_velocity_m_s = 0.0;
-  double peak_force_n = 0.0, simulated_peak_force_n = 0.0, peak_force_pct_diff = 0.0;
-  double max_deformation_m = 0.0, simulated_max_deformation_m = 0.0;
-};
+using TableHeldOut = fitting::TableHeldOut;
 
 struct TableRun {
   std::string table_path;

@@ -12,7 +12,7 @@
 #include <string>
 #include <vector>
 
-#include "fitting/fit.h"
+#include "fitting/table_fit.h"
 #include "fitting/models.h"
 #include "support/cli_harness.h"
 

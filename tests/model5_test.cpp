@@ -11,6 +11,7 @@
 #include <cstdio>
 #include <vector>
 
+#include "bench/model5_leapfrog.h"
 #include "fitting/model5_impl.h"
 
 #include "core/error.h"
@@ -18,6 +19,8 @@
 
 namespace dropfit::fitting {
 namespace {
+
+using bench::simulate_model5_leapfrog;
 
 // The paper's Table 2 Model 5 parameters (k1 70880, k2 787200, k3 617120,
 // r1 260, r2 280, r3 850; m1 2.44 kg, m2 3.66 kg) and its trial 3 impact.
