@@ -21,6 +21,7 @@ endif()
 # of these fails there.
 set(DROPFIT_INTERNAL_HEADERS
   capture/force_internal.h capture/text_io.h
+  capture/footage.h  # dropfit_video (OpenCV footage) stays in the build tree
   diagnosis/internal.h
   fitting/models_impl.h fitting/model5_impl.h)
 
