@@ -149,6 +149,31 @@ void check_range(const Resultants& raw, const ProcessOptions& options) {
 // slope, several times that; so R >= saturation_flat_samples with both
 // shoulders at least 3 times the parabola's slope (and 1 % of the extreme
 // per sample, for noiseless rails) is a flat top.
+// A clipped amplifier stops following the load; the plate's other loaded
+// channels do not. Over the flat run [first, end) of channel c, the sum of
+// the other channels loaded in the same sense (beyond 20 noise SDs) must
+// move by more than three times the flat channel's own relative band: a
+// load that plateaus (a mat's force holding at its peak) flattens every
+// channel alike, and is no saturation. With no other loaded channel (a
+// resultant-only record) the shape alone decides.
+bool load_keeps_moving(const Eigen::MatrixXd& x, Eigen::Index c, Eigen::Index first, Eigen::Index end, int quiet_end,
+                       double relative_band) {
+  Eigen::VectorXd load = Eigen::VectorXd::Zero(end - first);
+  int others = 0;
+  for (Eigen::Index k = 0; k < x.cols(); ++k) {
+    if (k == c) continue;
+    const RobustLevel zero = robust_level(x.col(k).head(quiet_end));
+    Eigen::VectorXd y = x.col(k).array() - zero.mean;
+    if (-y.minCoeff() > y.maxCoeff()) y = -y;
+    if (y.maxCoeff() <= 20.0 * zero.sd || y.segment(first, end - first).minCoeff() <= 20.0 * zero.sd) continue;
+    load += y.segment(first, end - first);
+    ++others;
+  }
+  if (others == 0) return true;
+  const double top = load.maxCoeff();
+  return top > 0.0 && (top - load.minCoeff()) / top > 3.0 * relative_band;
+}
+
 void check_flat_tops(const Resultants& raw, int quiet_end, const ProcessOptions& options) {
   const int flat = options.saturation_flat_samples;
   if (flat <= 1) return;
@@ -173,6 +198,7 @@ void check_flat_tops(const Resultants& raw, int quiet_end, const ProcessOptions&
     const double out = end + 2 < n ? (y[end - 1] - y[end + 2]) / 3.0 : kNaN;
     const bool steep_in = std::isfinite(in) && in >= steep;
     const bool steep_out = !std::isfinite(out) || out >= steep;
+    if (steep_in && steep_out && !load_keeps_moving(x, c, first, end, quiet_end, band / extreme)) continue;
     if (steep_in && steep_out) {
       throw Error(fmt::format(
           "force record: channel {} saturated (flat at {:.1f} N for samples {}-{}, {} samples within {:.1f} N, "
