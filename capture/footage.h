@@ -6,7 +6,7 @@
 // does no I/O.
 //
 // Frame numbers: the number in a frame file's name is the frame, i.e. the
-// row of xypts.csv (shared/spec/session-format.md, "Footage"): a sequence
+// row of xypts.csv (docs/formats.md, "Footage"): a sequence
 // exported from frame 399 on (frame_00399.png, ...) fills rows from 399.
 // The number is the last run of digits in the file's stem, except in the
 // Photron naming CxxxHxxxSxxxxNNNNNN (camera, head, session, then the

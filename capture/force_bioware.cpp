@@ -1,4 +1,4 @@
-// BioWare text exports as they come (shared/spec/session-format.md), and the
+// BioWare text exports as they come (docs/formats.md), and the
 // UTF-8 / UTF-16 line reading of the force text files.
 #include <fmt/format.h>
 

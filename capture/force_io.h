@@ -1,5 +1,5 @@
 #pragma once
-// Force-plate files as labs have them (shared/spec/session-format.md,
+// Force-plate files as labs have them (docs/formats.md,
 // "trials/TRIAL/force.txt" and "Files as other tools write them"):
 // the Kistler eight-channel text export, BioWare text exports as they come,
 // and C3D (force and 3-D markers). read_force (capture/io.h) dispatches here;

@@ -1,5 +1,5 @@
 // The Kistler eight-channel text export (force.txt, first layout of
-// shared/spec/session-format.md); moved here from io.cpp unchanged.
+// docs/formats.md).
 #include <fmt/format.h>
 
 #include <algorithm>

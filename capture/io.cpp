@@ -1,5 +1,5 @@
 // Readers and writers of the session format; see capture/io.h for the
-// conventions and shared/spec/session-format.md for the contract.
+// conventions and docs/formats.md for the contract.
 // The other formats live in capture/*_io.cpp; this file holds the force-plate exports.
 #include "capture/io.h"
 

@@ -1,5 +1,5 @@
 #pragma once
-// Readers and writers of the session format (shared/spec/session-format.md).
+// Readers and writers of the session format (docs/formats.md).
 // Every reader checks what it reads and throws dropfit::InputError naming
 // the file, line, column and field on anything malformed or missing.
 // Writers produce exactly what the readers accept (the sample generator

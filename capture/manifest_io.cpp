@@ -683,7 +683,7 @@ Manifest read_manifest(const std::string& path) { return ManifestReader(path).re
 void write_manifest(const std::string& path, const Manifest& m) {
   std::string s;
   auto out = std::back_inserter(s);
-  fmt::format_to(out, "# dropfit session manifest (shared/spec/session-format.md)\n\n");
+  fmt::format_to(out, "# dropfit session manifest (docs/formats.md)\n\n");
   fmt::format_to(out, "[session]\nname = {}\ngravity_m_s2 = {}\n", toml_string(m.name), toml_float(m.gravity_m_s2));
   if (!m.outside_physical_range.empty())
     fmt::format_to(out, "outside_physical_range = {}\n", toml_strings(m.outside_physical_range));

@@ -24,7 +24,7 @@ struct Line {
   std::string text;
 };
 
-// Limits of every reader (issue 13: bounded readers). A session file larger
+// Limits of every reader (bounded readers). A session file larger
 // than kMaxFileBytes is refused before it is read; names (points, cameras,
 // column names) are at most kMaxNameChars characters; a manifest lists at
 // most kMaxPoints points and kMaxCameras cameras (triangulation works

@@ -1,5 +1,5 @@
 #pragma once
-// The session as read from disk (shared/spec/session-format.md), in plain
+// The session as read from disk (docs/formats.md), in plain
 // values. Everything SI; image coordinates in pixels with the origin at the
 // top-left pixel corner, v downwards (bottom-left files are converted on
 // reading). Missing measurements are NaN, never zero.

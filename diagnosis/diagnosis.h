@@ -1,6 +1,6 @@
 #pragma once
 // Closing the loop: from a stage's residual to the effect it is missing, with
-// the error before and after (shared/spec/results-format.md, OUT/diagnosis.json).
+// the error before and after (docs/formats.md, OUT/diagnosis.json).
 //
 // The loop, the same for every stage:
 //   1. compute the stage's residual and test it for structure

@@ -5,7 +5,7 @@
 // onset found from the force itself, the peak and the end of contact.
 //
 // Kistler's standard eight-channel formulas (Kistler multicomponent force
-// plate manual; as in shared/spec/session-format.md), a, b, az0 from the
+// plate manual; as in docs/formats.md), a, b, az0 from the
 // plate's certificate:
 //
 //   Fx = Fx12 + Fx34   Fy = Fy14 + Fy23   Fz = Fz1 + Fz2 + Fz3 + Fz4

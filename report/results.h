@@ -1,5 +1,5 @@
 #pragma once
-// Results as text, exactly as in shared/spec/results-format.md: JSON for
+// Results as text, exactly as in docs/formats.md: JSON for
 // programs, CSV for spreadsheets. Pure formatting: nothing here touches the
 // disk (see report/output.h for writing).
 #include <string>

@@ -1,4 +1,4 @@
-// Files as other tools write them (shared/spec/session-format.md, "Files as
+// Files as other tools write them (docs/formats.md, "Files as
 // other tools write them"): DLTdv and Argus default point names,
 // tab-separated marker tables, prefixed *xypts.csv, DLTdv offsets.csv, and
 // DLT coefficients given instead of a calibration frame (with the

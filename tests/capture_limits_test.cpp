@@ -1,4 +1,4 @@
-// Bounded readers (issue 13, item 3): no regular expression on unbounded
+// Bounded readers: no regular expression on unbounded
 // input, limits on names, point and camera counts and file sizes, UTF-8
 // checked before the TOML parser, symbolic-link loops named as such; every
 // error names its file. Each case was a crash, a hang, gigabytes of memory

@@ -641,7 +641,7 @@ TEST_F(CaptureBadManifest, TomlSyntaxError) {
 
 // --- several key/values on one line, separated by ';' --------------------------
 
-// The manifest example of shared/spec/session-format.md, verbatim: its layer
+// The manifest example of docs/formats.md, verbatim: its layer
 // lines put three key/values on one line separated by ';', which TOML does
 // not allow but labs will copy.
 const char* const kSpecManifest = R"([session]

@@ -2,7 +2,7 @@
 // truth (samples/generator: make_session, then capture::write_session).
 // Each test writes its own short session into a fresh folder, runs the
 // binary, and checks the files it wrote against the contract
-// (shared/spec/results-format.md) and against the generator's truth, and
+// (docs/formats.md) and against the generator's truth, and
 // that the session folder was not touched.
 #include <fmt/format.h>
 #include <gtest/gtest.h>

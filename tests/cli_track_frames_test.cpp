@@ -1,6 +1,6 @@
 // `dropfit track` on footage exported from frame 399 on (frame_00399.png,
 // ...): a seed at frame 399 works, and the marker table's rows are the
-// footage's own frame numbers (shared/spec/session-format.md, "Footage").
+// footage's own frame numbers (docs/formats.md, "Footage").
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 

@@ -191,7 +191,7 @@ TEST(Diagnosis, RateDependence) {
 // (its surface is the impactor's face, so m1's travel is never seen; see
 // docs/diagnosis.md), so layer_mass is tested in the Model 3 world, where the
 // top layer moves with the impactor and the masses identify.
-// DISABLED (open in issue 11's note): the rewritten mat stage refits
+// DISABLED: the rewritten mat stage refits
 // layer_mass here and the held-out impactor travel falls from 16.2 to 1.1
 // noise SDs, but the held-out force rises from 23 to 36 noise SDs, so the
 // candidate is rejected ("the other channel gets worse"). Not yet traced.

@@ -1,4 +1,4 @@
-// BioWare text exports as they come (shared/spec/session-format.md, "Files as
+// BioWare text exports as they come (docs/formats.md, "Files as
 // other tools write them"): the real exports of
 // shared/real/kistler-bioware-biomdp (skipped when absent), and small
 // exports written here for the variants: header versions, several plates,

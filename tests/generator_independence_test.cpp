@@ -1,4 +1,4 @@
-// A generator that is not the fitter (issue 10): samples/generator shares no
+// A generator that is not the fitter: samples/generator shares no
 // simulation code with fitting/. Three checks, each of which fails if the
 // dependency comes back: the generator's sources include no fitting/ header
 // and name no fitting:: symbol, its CMakeLists links no dropfit_fitting, and

@@ -31,7 +31,7 @@ struct PlateOut {
   double fx, fy, fz, mx, my, mz, ax, ay;
 };
 
-// shared/spec/session-format.md's eight-channel formulas, written out again.
+// docs/formats.md's eight-channel formulas, written out again.
 PlateOut kistler(const Eigen::Matrix<double, 1, 8>& c, double a, double b, double az0) {
   PlateOut r{};
   r.fx = c(0) + c(1);

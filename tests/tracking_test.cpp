@@ -788,7 +788,7 @@ TEST(EndToEnd, ImpactVelocityFromTrackedFootageWithinTwoCentimetresPerSecond) {
 namespace dropfit {
 namespace {
 
-// Footage numbered by its file names (shared/spec/session-format.md,
+// Footage numbered by its file names (docs/formats.md,
 // "Footage"): a sequence exported from frame 399 on fills rows from 399.
 TEST(FrameFiles, NumberInTheFileNameIsTheFrame) {
   EXPECT_EQ(capture::frame_number_of("frame_00399"), 399);

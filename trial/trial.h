@@ -3,7 +3,7 @@
 // reconstructed marker trajectories and the session's constants in; impact
 // velocity with its 95 % interval, the video-force clock offset, maximum
 // deformation, tilt, acceptance and the contact series out (the fields of
-// OUT/trials/TRIAL/trial.json and series.csv, shared/spec/results-format.md).
+// OUT/trials/TRIAL/trial.json and series.csv, docs/formats.md).
 //
 // Clocks. Force clock: t = 0 at the plate's trigger sample (forceplate.h).
 // Video clock: frame i at (i - trigger_frame) / frame_rate, the nominal

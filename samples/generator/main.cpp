@@ -4,7 +4,7 @@
 //                 [--seed N] [--model 1..4] [--effect name=magnitude ...]
 //                 [--random-effects] [... every option of SynthOptions: --help]
 //
-// The session folder follows shared/spec/session-format.md (written by
+// The session folder follows docs/formats.md (written by
 // capture::write_session); the truth JSON goes elsewhere (keep it out of
 // the session folder: nothing in there may reveal the injected effects).
 #include <CLI/CLI.hpp>

@@ -1,6 +1,6 @@
 #pragma once
 // The generator's own mat physics: its own equations and its own integrator,
-// sharing no code with fitting/ (issue 10 item 4: "a generator that is not
+// sharing no code with fitting/ ("a generator that is not
 // the fitter"). tests/generator_independence_test.cpp and a configure-time
 // check in samples/generator/CMakeLists.txt fail if dropfit_synth links
 // dropfit_fitting or includes a fitting/ header.

@@ -1,12 +1,12 @@
 #pragma once
-// Synthetic drop-test sessions with known truth (issues 2-5, "samples/").
+// Synthetic drop-test sessions with known truth (samples/).
 //
 // make_session() builds, in memory, exactly the capture::Session that
 // capture::read_session would return for a lab's session folder, together
 // with the truth it was made from, so that every stage can be tested against
 // values it did not compute. The world it simulates:
 //
-// * Lab frame as in shared/spec/session-format.md: origin at the centre of
+// * Lab frame as in docs/formats.md: origin at the centre of
 //   the force-plate top, Z up, X along the mat's long side. The mat lies on
 //   the plate, centred, its undeformed top at the sum of the layer
 //   thicknesses (0.205 m by default).
@@ -88,7 +88,7 @@
 namespace dropfit::synth {
 
 // Effects to inject; every default is "off". Names and stages follow
-// shared/spec/results-format.md's effect table.
+// docs/formats.md's effect table.
 struct Effects {
   // calibration / lens_distortion: Bouguet k1 on both cameras (k2 p1 p2 k3 from
   // SynthOptions::extra_distortion).
