@@ -7,6 +7,7 @@
 #include <Eigen/Geometry>
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <functional>
 #include <cmath>
 #include <limits>
 #include <unordered_map>
@@ -419,9 +420,12 @@ void linear_dlt(const std::string& label, const std::vector<Eigen::Vector3d>& la
 
 }  // namespace
 
-DltFit fit_dlt(const std::string& camera_name, const std::vector<Correspondence>& points,
-               const DltOptions& options) {
-  const std::string label = label_of(camera_name);
+namespace {
+
+// The options and points a fit can start from: a distortion model that
+// exists, enough points for its parameters, every coordinate finite.
+void check_fit_input(const std::string& label, const char* model, const std::vector<Correspondence>& points,
+                     const DltOptions& options) {
   const int n = static_cast<int>(points.size());
   if (options.fit_distortion &&
       (options.radial_terms < 0 || options.radial_terms > 3 || (options.radial_terms == 0 && !options.tangential)))
@@ -429,7 +433,6 @@ DltFit fit_dlt(const std::string& camera_name, const std::vector<Correspondence>
                             label, options.radial_terms));
   const int n_params = parameter_count(options);
   const int min_points = min_fit_points(options);
-  const char* model = options.fit_distortion ? "DLT with lens distortion" : "11-parameter DLT";
   if (n < min_points)
     throw Error(fmt::format("{}: {} calibration point{} given; the {} ({} parameters) needs at least {}", label,
                             n, n == 1 ? "" : "s", model, n_params, min_points));
@@ -437,6 +440,76 @@ DltFit fit_dlt(const std::string& camera_name, const std::vector<Correspondence>
     if (!p.lab_m.allFinite() || !p.image_px.allFinite())
       throw Error(fmt::format("{}: calibration point '{}' has a coordinate that is not a finite number", label,
                               p.id));
+}
+
+// The distortion about the DLT's own centre from several starts; q, d (the
+// linear DLT's normalised coefficients and zero distortion on entry) and the
+// centre and focal length (the linear DLT's on entry) become the best fit's.
+void distortion_multistart(const std::string& label, const std::vector<Eigen::Vector3d>& lab_n,
+                           const std::vector<Eigen::Vector2d>& image, const Normalisation<2>& image_norm,
+                           const DltOptions& options, const std::function<Camera(const double*)>& to_camera, double* q,
+                           double* d, Eigen::Vector2d* best_centre, double* best_focal) {
+  // The distortion about the DLT's own centre is a hard landscape: the
+  // linear DLT's principal point, bent by the distortion, can sit far from
+  // the optical axis, and from there k1 stays near 0 in a poor optimum.
+  // So: the distortion about the linear DLT's centre held fixed (a
+  // well-posed start), then the moving centre from that optimum and from
+  // the linear DLT with k1 seeded across the range of real lenses; the
+  // lowest cost is kept (every start fits the same parameters).
+  const Eigen::Vector2d centre0 = *best_centre;
+  const double focal0 = *best_focal;
+  double q_linear[11];
+  std::copy(q, q + 11, q_linear);
+  double best_cost = refine(label, lab_n, image, image_norm, options, q, d, centre0, focal0);
+  double q_fixed[11], d_fixed[5];
+  std::copy(q, q + 11, q_fixed);
+  std::copy(d, d + 5, d_fixed);
+  auto from = [&](const double* q_start, const double* d_start) {
+    double qs[11], ds[5];
+    std::copy(q_start, q_start + 11, qs);
+    std::copy(d_start, d_start + 5, ds);
+    double cost = std::numeric_limits<double>::infinity();
+    try {
+      cost = refine(label, lab_n, image, image_norm, options, qs, ds);
+    } catch (const Error&) {
+      return;
+    }
+    Eigen::Vector2d centre;
+    double focal = 0.0;
+    if (!(cost < best_cost) || !principal_point_and_focal(to_camera(qs).dlt, &centre, &focal)) return;
+    best_cost = cost;
+    *best_centre = centre;
+    *best_focal = focal;
+    std::copy(qs, qs + 11, q);
+    std::copy(ds, ds + 5, d);
+  };
+  from(q_fixed, d_fixed);
+  if (options.radial_terms >= 1)  // k1 free
+    for (double k1 : kDistortionSeedsK1) {
+      const double d_seed[5] = {k1, 0.0, 0.0, 0.0, 0.0};
+      from(q_linear, d_seed);
+    }
+}
+
+// Each point's reprojection residual and their RMS.
+void set_residuals(const std::vector<Eigen::Vector3d>& lab, const std::vector<Eigen::Vector2d>& image, DltFit& fit) {
+  fit.residuals_px.resize(lab.size());
+  double sum_sq = 0.0;
+  for (std::size_t i = 0; i < lab.size(); ++i) {
+    fit.residuals_px[i] = image[i] - fit.camera.project(lab[i]);
+    sum_sq += fit.residuals_px[i].squaredNorm();
+  }
+  fit.fit_rms_px = std::sqrt(sum_sq / static_cast<double>(lab.size()));
+}
+
+}  // namespace
+
+DltFit fit_dlt(const std::string& camera_name, const std::vector<Correspondence>& points,
+               const DltOptions& options) {
+  const std::string label = label_of(camera_name);
+  const int n = static_cast<int>(points.size());
+  const char* model = options.fit_distortion ? "DLT with lens distortion" : "11-parameter DLT";
+  check_fit_input(label, model, points, options);
 
   std::vector<Eigen::Vector3d> lab(points.size());
   std::vector<Eigen::Vector2d> image(points.size());
@@ -518,62 +591,15 @@ DltFit fit_dlt(const std::string& camera_name, const std::vector<Correspondence>
         }
       }
       if (!warm) {
-        // The distortion about the DLT's own centre is a hard landscape: the
-        // linear DLT's principal point, bent by the distortion, can sit 200 px
-        // from the optical axis, and from there k1 stays near 0 in a poor
-        // optimum (1.7 px^2 of cost against 0.11 from the right basin, on 7
-        // markers). So: the distortion about the linear DLT's centre held
-        // fixed (the former model, a well-posed start), then the moving
-        // centre from that optimum and from the linear DLT with k1 seeded
-        // across the range of real lenses; the lowest cost is kept (every
-        // start fits the same parameters).
-        const Eigen::Vector2d centre0 = fit.camera.principal_point_px;
-        const double focal0 = fit.camera.focal_px;
-        double q_linear[11];
-        std::copy(q, q + 11, q_linear);
-        double best_cost = refine(label, lab_n, image, image_norm, options, q, d, centre0, focal0);
-        Eigen::Vector2d best_centre = centre0;
-        double best_focal = focal0;
-        double q_fixed[11], d_fixed[5];
-        std::copy(q, q + 11, q_fixed);
-        std::copy(d, d + 5, d_fixed);
-        auto from = [&](const double* q_start, const double* d_start) {
-          double qs[11], ds[5];
-          std::copy(q_start, q_start + 11, qs);
-          std::copy(d_start, d_start + 5, ds);
-          double cost = std::numeric_limits<double>::infinity();
-          try {
-            cost = refine(label, lab_n, image, image_norm, options, qs, ds);
-          } catch (const Error&) {
-            return;
-          }
-          Eigen::Vector2d centre;
-          double focal = 0.0;
-          if (!(cost < best_cost) || !principal_point_and_focal(to_camera(qs).dlt, &centre, &focal)) return;
-          best_cost = cost;
-          best_centre = centre;
-          best_focal = focal;
-          std::copy(qs, qs + 11, q);
-          std::copy(ds, ds + 5, d);
-        };
-        from(q_fixed, d_fixed);
-        if (options.radial_terms >= 1)  // k1 free
-          for (double k1 : kDistortionSeedsK1) {
-            const double d_seed[5] = {k1, 0.0, 0.0, 0.0, 0.0};
-            from(q_linear, d_seed);
-          }
+        Eigen::Vector2d best_centre = fit.camera.principal_point_px;
+        double best_focal = fit.camera.focal_px;
+        distortion_multistart(label, lab_n, image, image_norm, options, to_camera, q, d, &best_centre, &best_focal);
         adopt(q, d, best_centre, best_focal);
       }
     }
   }
 
-  fit.residuals_px.resize(points.size());
-  double sum_sq = 0.0;
-  for (int i = 0; i < n; ++i) {
-    fit.residuals_px[i] = image[i] - fit.camera.project(lab[i]);
-    sum_sq += fit.residuals_px[i].squaredNorm();
-  }
-  fit.fit_rms_px = std::sqrt(sum_sq / n);
+  set_residuals(lab, image, fit);
   return fit;
 }
 

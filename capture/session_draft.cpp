@@ -8,6 +8,7 @@
 #include <cmath>
 #include <filesystem>
 #include <map>
+#include <functional>
 #include <optional>
 #include <set>
 #include <sstream>
@@ -185,6 +186,89 @@ std::string trial_id(const fs::path& dir, const fs::path& root, std::set<std::st
   return id;
 }
 
+// What the trial folders hold: the first marker table's header (the others
+// checked against it), the first force export's facts, and each trial's
+// [[trial]] lines; `d` gets the trials, what was found and what to check.
+struct ScannedTrials {
+  std::optional<TableHeader> header;
+  std::string header_file;
+  std::vector<std::string> trial_lines;
+  std::optional<PlateFacts> plate;
+  std::string plate_file;
+  bool any_offsets = false, any_3d = false;
+};
+
+ScannedTrials scan_trial_folders(const fs::path& root, const std::vector<fs::path>& trial_dirs, SessionDraft& d) {
+  ScannedTrials s;
+  std::set<std::string> ids;
+  for (std::size_t i = 0; i < trial_dirs.size(); ++i) {
+    const fs::path& dir = trial_dirs[i];
+    const std::string rel = dir == root ? "." : relative_to(dir, root);
+    d.trials.push_back(rel);
+    const std::string table = find_xypts(dir.string());
+    if (fs::exists(table)) {
+      const TableHeader h = read_table_header(table);
+      s.any_offsets = s.any_offsets || fs::exists(offsets_path(table));
+      d.found.push_back(fmt::format("{}: marker table {} ({} rows, {} points, {} cameras){}", rel,
+                                    fs::path(table).filename().string(), h.rows, h.points.size(), h.cameras,
+                                    fs::exists(offsets_path(table)) ? " with DLTdv offsets" : ""));
+      if (!s.header) {
+        s.header = h;
+        s.header_file = table;
+      } else if (h.points != s.header->points || h.cameras != s.header->cameras) {
+        d.check.push_back(fmt::format("video.points ({} names other points or cameras than {})", table, s.header_file));
+      }
+    } else {
+      s.any_3d = true;
+      d.found.push_back(fmt::format("{}: 3-D markers (markers.c3d)", rel));
+    }
+    const std::string force = find_force_file(dir.string());
+    if (fs::exists(force)) {
+      const PlateFacts p = read_plate_facts(force);
+      d.found.push_back(fmt::format("{}: force export {} ({}, {} Hz{})", rel, fs::path(force).filename().string(),
+                                    p.kind, p.rate_hz, p.plates > 1 ? fmt::format(", {} plates", p.plates) : ""));
+      if (!s.plate) {
+        s.plate = p;
+        s.plate_file = force;
+      }
+    } else {
+      d.found.push_back(fmt::format("{}: no force export", rel));
+    }
+    s.trial_lines.push_back(
+        fmt::format("\n[[trial]]\nid = {}\ndir = {}\n", toml_quoted(trial_id(dir, root, ids, i)), toml_quoted(rel)));
+  }
+  return s;
+}
+
+// The [forceplate] table from the first force export's facts.
+std::string forceplate_toml(const PlateFacts& plate, const std::string& plate_file, const fs::path& root,
+                            SessionDraft& d, const std::function<std::string(const std::string&, const std::string&)>& fill) {
+  std::string t;
+  t += fmt::format("\n[forceplate]\nmodel = {}\nsample_rate_hz = {}  # from {}\n", toml_quoted(plate.device),
+                   plate.rate_hz, relative_to(plate_file, root));
+  if (plate.trigger_n) {
+    t += fmt::format("trigger_threshold_n = {}  # from the export's Trigger line\n", *plate.trigger_n);
+  } else {
+    t += "trigger_threshold_n = 25.0  # CHECK: the acquisition's trigger level on Fz (N); the trigger sample of an "
+         "export without one is found where Fz crosses it\n";
+    d.check.push_back("forceplate.trigger_threshold_n");
+  }
+  if (plate.geometry_m) {
+    t += fmt::format("a_m = {}\nb_m = {}\naz0_m = {}  # from the C3D's FORCE_PLATFORM:ORIGIN\n", (*plate.geometry_m)[0],
+                     (*plate.geometry_m)[1], (*plate.geometry_m)[2]);
+  } else {
+    t += fmt::format("a_m = {}\nb_m = {}\naz0_m = {}\n", fill("forceplate.a_m", "sensor offset a from the plate's certificate, m"),
+                     fill("forceplate.b_m", "sensor offset b from the plate's certificate, m"),
+                     fill("forceplate.az0_m", "top-surface offset az0 from the certificate, m (negative)"));
+  }
+  t += fmt::format("mat_top_z_m = {}\n", fill("forceplate.mat_top_z_m", "height of the mat's undeformed top, m"));
+  if (plate.plates > 1) {
+    t += fmt::format("plate = 1  # CHECK: the export holds {} plates\n", plate.plates);
+    d.check.push_back("forceplate.plate");
+  }
+  return t;
+}
+
 }  // namespace
 
 SessionDraft draft_session(const std::string& folder) {
@@ -203,50 +287,9 @@ SessionDraft draft_session(const std::string& folder) {
     return toml_quoted("FILL IN: " + what);
   };
 
-  // Marker tables: points and cameras from the first, the others checked against it.
-  std::optional<TableHeader> header;
-  std::string header_file;
-  std::vector<std::string> trial_lines;
-  std::set<std::string> ids;
-  std::optional<PlateFacts> plate;
-  std::string plate_file;
-  bool any_offsets = false, any_3d = false;
-  for (std::size_t i = 0; i < trial_dirs.size(); ++i) {
-    const fs::path& dir = trial_dirs[i];
-    const std::string rel = dir == root ? "." : relative_to(dir, root);
-    d.trials.push_back(rel);
-    const std::string table = find_xypts(dir.string());
-    if (fs::exists(table)) {
-      const TableHeader h = read_table_header(table);
-      any_offsets = any_offsets || fs::exists(offsets_path(table));
-      d.found.push_back(fmt::format("{}: marker table {} ({} rows, {} points, {} cameras){}", rel,
-                                    fs::path(table).filename().string(), h.rows, h.points.size(), h.cameras,
-                                    fs::exists(offsets_path(table)) ? " with DLTdv offsets" : ""));
-      if (!header) {
-        header = h;
-        header_file = table;
-      } else if (h.points != header->points || h.cameras != header->cameras) {
-        d.check.push_back(fmt::format("video.points ({} names other points or cameras than {})", table, header_file));
-      }
-    } else {
-      any_3d = true;
-      d.found.push_back(fmt::format("{}: 3-D markers (markers.c3d)", rel));
-    }
-    const std::string force = find_force_file(dir.string());
-    if (fs::exists(force)) {
-      const PlateFacts p = read_plate_facts(force);
-      d.found.push_back(fmt::format("{}: force export {} ({}, {} Hz{})", rel, fs::path(force).filename().string(),
-                                    p.kind, p.rate_hz, p.plates > 1 ? fmt::format(", {} plates", p.plates) : ""));
-      if (!plate) {
-        plate = p;
-        plate_file = force;
-      }
-    } else {
-      d.found.push_back(fmt::format("{}: no force export", rel));
-    }
-    trial_lines.push_back(
-        fmt::format("\n[[trial]]\nid = {}\ndir = {}\n", toml_quoted(trial_id(dir, root, ids, i)), toml_quoted(rel)));
-  }
+  ScannedTrials scanned = scan_trial_folders(root, trial_dirs, d);
+  const std::optional<TableHeader>& header = scanned.header;
+  const std::optional<PlateFacts>& plate = scanned.plate;
   if (!plate)
     throw InputError(folder, 0, 0, "",
                      "no force export in any trial folder (a Kistler or BioWare text export, or a C3D with analog "
@@ -305,28 +348,7 @@ SessionDraft draft_session(const std::string& folder) {
     t += "image_origin = \"top-left\"  # DLTdv 8.4 and later\n";
   }
 
-  t += fmt::format("\n[forceplate]\nmodel = {}\nsample_rate_hz = {}  # from {}\n", toml_quoted(plate->device),
-                   plate->rate_hz, relative_to(plate_file, root));
-  if (plate->trigger_n) {
-    t += fmt::format("trigger_threshold_n = {}  # from the export's Trigger line\n", *plate->trigger_n);
-  } else {
-    t += "trigger_threshold_n = 25.0  # CHECK: the acquisition's trigger level on Fz (N); the trigger sample of an "
-         "export without one is found where Fz crosses it\n";
-    d.check.push_back("forceplate.trigger_threshold_n");
-  }
-  if (plate->geometry_m) {
-    t += fmt::format("a_m = {}\nb_m = {}\naz0_m = {}  # from the C3D's FORCE_PLATFORM:ORIGIN\n", (*plate->geometry_m)[0],
-                     (*plate->geometry_m)[1], (*plate->geometry_m)[2]);
-  } else {
-    t += fmt::format("a_m = {}\nb_m = {}\naz0_m = {}\n", fill("forceplate.a_m", "sensor offset a from the plate's certificate, m"),
-                     fill("forceplate.b_m", "sensor offset b from the plate's certificate, m"),
-                     fill("forceplate.az0_m", "top-surface offset az0 from the certificate, m (negative)"));
-  }
-  t += fmt::format("mat_top_z_m = {}\n", fill("forceplate.mat_top_z_m", "height of the mat's undeformed top, m"));
-  if (plate->plates > 1) {
-    t += fmt::format("plate = 1  # CHECK: the export holds {} plates\n", plate->plates);
-    d.check.push_back("forceplate.plate");
-  }
+  t += forceplate_toml(*plate, scanned.plate_file, root, d, fill);
 
   // Calibration: given coefficients, else a frame, else none (3-D markers only).
   const bool frame = fs::exists(root / "calibration" / "frame.csv");
@@ -342,9 +364,9 @@ SessionDraft draft_session(const std::string& folder) {
                      fill("calibration.dlt_coefficients",
                           "the DLT coefficient file (easyWand *_dltCoefs.csv), or give calibration/frame.csv"));
   }
-  if (any_offsets) d.found.push_back("DLTdv offsets: rows are used as DLTdv aligned them");
-  if (any_3d && header) d.check.push_back("trials mix marker tables and markers.c3d");
-  for (const auto& l : trial_lines) t += l;
+  if (scanned.any_offsets) d.found.push_back("DLTdv offsets: rows are used as DLTdv aligned them");
+  if (scanned.any_3d && header) d.check.push_back("trials mix marker tables and markers.c3d");
+  for (const auto& l : scanned.trial_lines) t += l;
   d.toml = std::move(t);
   return d;
 }

@@ -241,6 +241,28 @@ std::optional<SyncDiagnosis> rejudge_sync(const std::vector<trial::TrialResult>&
 
 }  // namespace
 
+namespace {
+
+// The accepted trials' fit data with the plate's gain and drift taken out.
+std::vector<fitting::TrialData> corrected_mat_data(const SessionData& state, const PlateCorrection& correction) {
+  std::vector<fitting::TrialData> data;
+  for (std::size_t i = 0; i < state.fit_data.size() && i < state.trials.size(); ++i) {
+    const fitting::TrialData& d = state.fit_data[i];
+    if (!d.accepted) continue;
+    fitting::TrialData c = d;
+    const double tc = state.trials[i].result.contact_time_s;
+    if (correction.drift || correction.gain != 1.0) {
+      const Eigen::VectorXd t_abs = d.t_s.array() + tc;
+      c.grf_n = correction.apply(t_abs, d.grf_n, tc);
+      c.force_noise_n = d.force_noise_n / correction.gain;
+    }
+    data.push_back(std::move(c));
+  }
+  return data;
+}
+
+}  // namespace
+
 DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& options) {
   DiagnosisResult result;
   MatStageOptions mo = options.mat_stage;
@@ -316,19 +338,7 @@ DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& optio
 
   // ---- mat: the fits' own data, with the plate corrections applied ----
   if (options.mat && gate("mat")) {
-    std::vector<fitting::TrialData> data;
-    for (std::size_t i = 0; i < state.fit_data.size() && i < state.trials.size(); ++i) {
-      const fitting::TrialData& d = state.fit_data[i];
-      if (!d.accepted) continue;
-      fitting::TrialData c = d;
-      const double tc = state.trials[i].result.contact_time_s;
-      if (correction.drift || correction.gain != 1.0) {
-        const Eigen::VectorXd t_abs = d.t_s.array() + tc;
-        c.grf_n = correction.apply(t_abs, d.grf_n, tc);
-        c.force_noise_n = d.force_noise_n / correction.gain;
-      }
-      data.push_back(std::move(c));
-    }
+    const std::vector<fitting::TrialData> data = corrected_mat_data(state, correction);
     // The run's own Model 4 fit is the baseline when the plate needed no
     // correction (the same data, the same options): it is not refitted.
     const fitting::FitResult* run_fit = state.fit(mo.fit.model);
