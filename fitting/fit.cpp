@@ -9,6 +9,7 @@
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <exception>
@@ -22,6 +23,7 @@
 #include "core/cpu_dispatch.h"
 #include "core/error.h"
 #include "core/parallel.h"
+#include "fitting/error_budget.h"
 #include "fitting/model5_impl.h"
 #include "fitting/models_impl.h"
 
@@ -1183,70 +1185,63 @@ Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, con
 
 std::string param_display(const FreeParam& f) { return f.transform == Transform::Fraction ? "m1_kg" : f.name; }
 
-// Covariance from the Jacobian (model parameters first, then the fitted
-// clock shifts): standard errors and identifiability of the parameters;
-// the shifts' standard errors go to `shift_se`.
+// Standard errors, 95 % intervals and identifiability of the parameters
+// from the error budget (fitting/error_budget.h; coordinates: model
+// parameters first, then the fitted clock shifts); the shifts' standard
+// errors go to `shift_se`.
 void covariance(const Optimum& opt, const ParamSpace& space, const FitOptions& o, const MatParams& mp,
-                std::vector<ParameterEstimate>* est, std::vector<double>* shift_se,
+                const ErrorBudget& budget, std::vector<ParameterEstimate>* est, std::vector<double>* shift_se,
                 std::vector<std::string>* warnings) {
   const int np = space.size();
   const Eigen::MatrixXd& J = opt.jacobian;
   const int n = static_cast<int>(J.cols());
-  if (J.rows() <= n || n < np) {
+  if (J.rows() <= n || n < np || budget.covariance.rows() != n) {
     warnings->push_back("covariance not available (too few residuals)");
     return;
   }
-  const double dof = static_cast<double>(J.rows() - n);
-  const double s2 = opt.residuals.squaredNorm() / dof;
-  // Scale columns to unit norm so the conditioning reflects correlation.
-  Eigen::VectorXd colnorm = J.colwise().norm().transpose();
-  for (int j = 0; j < n; ++j)
-    if (!(colnorm[j] > 0.0)) colnorm[j] = 1.0;
-  const Eigen::MatrixXd Js = J * colnorm.cwiseInverse().asDiagonal();
-  const Eigen::MatrixXd JtJ = Js.transpose() * Js;
-  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(JtJ);
-  const Eigen::VectorXd ev = es.eigenvalues();
+  const Eigen::MatrixXd& cov = budget.covariance;
+  const Eigen::VectorXd& ev = budget.eigenvalues;
   const double evmax = ev.maxCoeff();
-  Eigen::MatrixXd inv = Eigen::MatrixXd::Zero(n, n);
-  for (int i = 0; i < n; ++i) {
-    const double lam = ev[i];
-    if (lam > 1e-14 * evmax) inv += es.eigenvectors().col(i) * es.eigenvectors().col(i).transpose() / lam;
-  }
-  Eigen::MatrixXd cov = s2 * colnorm.cwiseInverse().asDiagonal() * inv * colnorm.cwiseInverse().asDiagonal();
   auto label = [&](int j) { return j < np ? param_display(space.free[j]) : fmt::format("clock shift {}", j - np + 1); };
   for (int i = 0; i < n; ++i) {
     const double lam = ev[i];
     if (lam < 1e-8 * evmax) {
-      const Eigen::VectorXd v = es.eigenvectors().col(i);
+      const Eigen::VectorXd v = budget.eigenvectors.col(i);
       std::string dir;
       for (int j = 0; j < n; ++j)
         if (std::abs(v[j]) > 0.3) dir += fmt::format("{}{:+.2f} {}", dir.empty() ? "" : " ", v[j], label(j));
       warnings->push_back(fmt::format("near-singular direction (eigenvalue ratio {:.1e}): {}", lam / evmax, dir));
     }
   }
-  auto lost = [&](int j) {
-    for (int i = 0; i < n; ++i)
-      if (ev[i] <= 1e-14 * evmax && std::abs(es.eigenvectors()(j, i)) > 0.1) return true;
-    return false;
-  };
   shift_se->clear();
   for (int j = np; j < n; ++j)
-    shift_se->push_back(lost(j) ? std::numeric_limits<double>::infinity() : std::sqrt(std::max(cov(j, j), 0.0)));
+    shift_se->push_back(budget.lost[j] ? std::numeric_limits<double>::infinity() : std::sqrt(std::max(cov(j, j), 0.0)));
+  const double z = 1.959964;
   for (int j = 0; j < np; ++j) {
     const FreeParam& f = space.free[j];
     ParameterEstimate& e = (*est)[j];
     double se_u = std::sqrt(std::max(cov(j, j), 0.0));
+    const double white_u = std::sqrt(std::max(budget.white_covariance(j, j), 0.0));
     // A direction dropped from the inverse: the parameter is unconstrained.
-    if (lost(j)) se_u = std::numeric_limits<double>::infinity();
+    if (budget.lost[j]) se_u = std::numeric_limits<double>::infinity();
     if (f.transform == Transform::Log) {
       e.se = e.value * se_u;
       e.rel_se = se_u;
+      e.se_white = e.value * white_u;
+      e.ci_low = e.value * std::exp(-z * se_u);
+      e.ci_high = e.value * std::exp(z * se_u);
     } else if (f.transform == Transform::Fraction) {
       e.se = space.total_mass * se_u;
       e.rel_se = e.se / std::max(mp.m1_kg, 1e-12);
+      e.se_white = space.total_mass * white_u;
+      e.ci_low = std::max(e.value - z * e.se, 0.0);
+      e.ci_high = std::min(e.value + z * e.se, space.total_mass);
     } else {
       e.se = f.scale * se_u;
       e.rel_se = e.se / std::max(std::abs(e.value), 1e-300);
+      e.se_white = f.scale * white_u;
+      e.ci_low = e.value - z * e.se;
+      e.ci_high = e.value + z * e.se;
     }
     if (!(e.rel_se <= o.identifiability_rel_se)) {
       e.identifiable = false;
@@ -1269,6 +1264,7 @@ void covariance(const Optimum& opt, const ParamSpace& space, const FitOptions& o
       e.identifiable = false;
       e.at_bound = true;
     }
+    if (!e.identifiable) e.ci_low = e.ci_high = std::numeric_limits<double>::quiet_NaN();
   }
   for (int a = 0; a < np; ++a)
     for (int b = a + 1; b < np; ++b) {
@@ -1427,6 +1423,235 @@ double sim_peak(const FitOptions& o, const MatParams& mp, const Impact& imp) {
   const Simulation s = simulate_model(o, mp, imp);
   return s.grf_n.maxCoeff();
 }
+
+// The inputs' errors as nuisance parameters with priors (fit.h: error
+// budget), linearised at the optimum: K = how the (weighted) data move per
+// unit of each, P their prior covariance. Per training trial with a
+// measured budget: the impact velocity's correction (v_true - v_measured),
+// the video contact instant's error and the travel reference's error; one
+// for the session: the calibration's vertical scale error, which moves
+// every trial's measured velocity and travel in proportion.
+struct Nuisances {
+  Eigen::MatrixXd K, P;
+  int scale = -1;                 // column of the scale error, -1: none
+  std::vector<int> velocity;      // per prepared trial: its velocity column, -1: none
+};
+
+Nuisances nuisance_columns(const std::vector<Prepared>& preps, const ParamSpace& space, const FitOptions& o,
+                           const MatParams& mp, const std::vector<double>& shifts, Eigen::Index n_res) {
+  Nuisances nz;
+  std::vector<Eigen::VectorXd> cols;
+  std::vector<std::array<double, 3>> prior;  // per column: variance, partner column, covariance
+  Eigen::VectorXd scale_col = Eigen::VectorXd::Zero(n_res);
+  double scale_sd = 0.0;
+  nz.velocity.assign(preps.size(), -1);
+  Eigen::Index off = 0;
+  for (size_t q = 0; q < preps.size(); ++q) {
+    const Prepared& p = preps[q];
+    const TrialData& td = *p.data;
+    const int nf = static_cast<int>(p.f_idx.size()), nk = static_cast<int>(p.k_idx.size());
+    const double shift = p.shifted() ? shifts[q] : 0.0;
+    const double v = td.impact_velocity_m_s;
+    const detail::Trace<double> s0 = simulate_window(p, space, o, mp, nullptr);
+    // d data / d v: the simulation at v +- dv (the residuals' own derivative).
+    Eigen::VectorXd dv_col = Eigen::VectorXd::Zero(n_res);
+    if (std::isfinite(td.impact_velocity_se_m_s) || std::isfinite(td.calibration_scale_sd)) {
+      const double dv = 1e-4 * std::max(v, 0.1);
+      std::vector<double> rp(p.n_residuals()), rm(p.n_residuals());
+      Prepared pp = p;
+      pp.impact.velocity_m_s = v + dv;
+      const auto sp = simulate_window(pp, space, o, mp, nullptr);
+      fill_residuals<double>(pp, sp.grf, sp.impactor, shift, rp.data());
+      pp.impact.velocity_m_s = v - dv;
+      const auto sm = simulate_window(pp, space, o, mp, nullptr);
+      fill_residuals<double>(pp, sm.grf, sm.impactor, shift, rm.data());
+      for (int i = 0; i < p.n_residuals(); ++i) dv_col[off + i] = (rp[i] - rm[i]) / (2.0 * dv);
+    }
+    int vcol = -1;
+    if (std::isfinite(td.impact_velocity_se_m_s) && td.impact_velocity_se_m_s > 0.0) {
+      vcol = static_cast<int>(cols.size());
+      nz.velocity[q] = vcol;
+      cols.push_back(dv_col);
+      prior.push_back({td.impact_velocity_se_m_s * td.impact_velocity_se_m_s, -1.0, 0.0});
+    }
+    if (nk > 0 && std::isfinite(td.contact_time_se_s) && td.contact_time_se_s > 0.0) {
+      // The contact estimate late by dt: the measured travel at model time t
+      // is the true travel at t + dt.
+      Eigen::VectorXd c = Eigen::VectorXd::Zero(n_res);
+      for (int j = 0; j < nk; ++j) {
+        const double t = td.t_s[p.k_idx[j]];
+        const double rate = (on_grid(s0.impactor, t + p.h, p.h, 0.0) - on_grid(s0.impactor, std::max(t - p.h, 0.0), p.h, 0.0)) /
+                            (t + p.h - std::max(t - p.h, 0.0));
+        c[off + nf + j] = p.k_w * rate;
+      }
+      // The free-fall fit's speed and instant err together: the velocity
+      // correction is minus the speed's error.
+      const double cov = std::isfinite(td.velocity_contact_time_cov) && vcol >= 0 ? -td.velocity_contact_time_cov : 0.0;
+      prior.push_back({td.contact_time_se_s * td.contact_time_se_s, static_cast<double>(vcol), cov});
+      cols.push_back(c);
+    }
+    if (nk > 0 && std::isfinite(td.travel_reference_se_m) && td.travel_reference_se_m > 0.0) {
+      Eigen::VectorXd c = Eigen::VectorXd::Zero(n_res);
+      for (int j = 0; j < nk; ++j) c[off + nf + j] = p.k_w;
+      prior.push_back({td.travel_reference_se_m * td.travel_reference_se_m, -1.0, 0.0});
+      cols.push_back(c);
+    }
+    if (std::isfinite(td.calibration_scale_sd) && td.calibration_scale_sd > 0.0) {
+      // Lengths along z read (1 + s) times the truth: the velocity (the
+      // simulation's input is v (1 + s): its correction -v s) and the travel.
+      scale_sd = std::max(scale_sd, td.calibration_scale_sd);
+      for (Eigen::Index i = 0; i < n_res; ++i) scale_col[i] -= v * dv_col[i];
+      for (int j = 0; j < nk; ++j) scale_col[off + nf + j] += p.k_w * td.impactor_m[p.k_idx[j]];
+    }
+    off += p.n_residuals();
+  }
+  if (scale_sd > 0.0) {
+    nz.scale = static_cast<int>(cols.size());
+    cols.push_back(scale_col);
+    prior.push_back({scale_sd * scale_sd, -1.0, 0.0});
+  }
+  const int m = static_cast<int>(cols.size());
+  nz.K.resize(n_res, m);
+  nz.P = Eigen::MatrixXd::Zero(m, m);
+  for (int j = 0; j < m; ++j) {
+    nz.K.col(j) = cols[j];
+    nz.P(j, j) = prior[j][0];
+    const int partner = static_cast<int>(prior[j][1]);
+    if (partner >= 0) nz.P(j, partner) = nz.P(partner, j) = prior[j][2];
+  }
+  return nz;
+}
+
+// The three summary numbers of a simulated contact: peak force and its time
+// (a parabola through the highest sample and its neighbours, so that they
+// move smoothly with the parameters) and the largest impactor travel.
+struct Summary {
+  double peak_n = kNaN, t_peak_s = kNaN, max_travel_m = kNaN;
+};
+
+double parabola_top(const Eigen::VectorXd& y, Eigen::Index i, double* offset) {
+  *offset = 0.0;
+  if (i <= 0 || i + 1 >= y.size()) return y[i];
+  const double a = y[i - 1], b = y[i], c = y[i + 1], curv = a - 2.0 * b + c;
+  if (!(curv < 0.0)) return b;
+  *offset = 0.5 * (a - c) / curv;
+  return b - 0.25 * (a - c) * *offset;
+}
+
+Summary summarise(const Simulation& s) {
+  Summary out;
+  if (s.grf_n.size() < 3) return out;
+  Eigen::Index ip = 0, iy = 0;
+  s.grf_n.maxCoeff(&ip);
+  double off = 0.0;
+  out.peak_n = parabola_top(s.grf_n, ip, &off);
+  out.t_peak_s = s.t_s[ip] + off * (s.t_s[1] - s.t_s[0]);
+  if (s.impactor_m.size() == s.grf_n.size()) {
+    s.impactor_m.maxCoeff(&iy);
+    out.max_travel_m = parabola_top(s.impactor_m, iy, &off);
+  }
+  return out;
+}
+
+// What a held-out quantity's interval is built from: the fitted
+// coordinates' covariance and their covariance with the session's scale
+// error and with this trial's own velocity error (a training trial's).
+struct PredictionBasis {
+  Eigen::MatrixXd cov_u;            // free parameters (optimiser coordinates)
+  Eigen::VectorXd cov_u_scale;      // cov(u_hat, s), empty: none
+  double scale_sd = 0.0;
+  Eigen::VectorXd cov_u_velocity;   // cov(u_hat, e_v) of this trial, empty: none (held out)
+};
+
+Prediction prediction_intervals(const TrialData& td, const TrialReport& rep, const ParamSpace& space,
+                                const FitOptions& o, const Eigen::VectorXd& u, const PredictionBasis& b) {
+  Prediction out;
+  const int np = space.size();
+  Impact imp;
+  imp.mass_kg = td.impactor_mass_kg;
+  imp.gravity_m_s2 = td.gravity_m_s2;
+  imp.velocity_m_s = td.impact_velocity_m_s;
+  imp.first_output_s = 0.0;
+  imp.output_dt_s = 1e-4;
+  imp.duration_s = std::max(rep.window_end_s, 0.05) + 0.005;
+  auto run = [&](const Eigen::VectorXd& uu, double v) {
+    Impact i2 = imp;
+    i2.velocity_m_s = v;
+    return simulate_model(o, space.to_mat(uu.data()), i2);
+  };
+  const Simulation s0 = run(u, imp.velocity_m_s);
+  const Summary q0 = summarise(s0);
+  const Eigen::Index n = td.t_s.size();
+  const double shift = rep.contact_shift_s;
+  // The force on the trial's samples from the fine grid (linear).
+  auto on_samples = [&](const Simulation& s) {
+    Eigen::VectorXd f = Eigen::VectorXd::Zero(n);
+    const double h = imp.output_dt_s;
+    for (Eigen::Index i = 0; i < n; ++i) {
+      const double tau = td.t_s[i] - shift;
+      if (tau < 0.0) continue;
+      const double x = tau / h;
+      const Eigen::Index k = static_cast<Eigen::Index>(std::floor(x));
+      if (k + 1 >= s.grf_n.size()) { f[i] = s.grf_n[s.grf_n.size() - 1]; continue; }
+      const double a = x - static_cast<double>(k);
+      f[i] = (1.0 - a) * s.grf_n[k] + a * s.grf_n[k + 1];
+    }
+    return f;
+  };
+  const Eigen::VectorXd f0 = on_samples(s0);
+  // Central differences: every free parameter, then the velocity.
+  Eigen::MatrixXd g(3, np + 1), gf(n, np + 1);
+  for (int j = 0; j <= np; ++j) {
+    Eigen::VectorXd up = u, um = u;
+    double vp = imp.velocity_m_s, vm = vp, step;
+    if (j < np) {
+      step = 1e-3 * std::max(std::abs(u[j]), 1.0);
+      up[j] += step, um[j] -= step;
+    } else {
+      step = 1e-3 * std::max(vp, 0.1);
+      vp += step, vm -= step;
+    }
+    const Simulation sp = run(up, vp), sm = run(um, vm);
+    const Summary qp = summarise(sp), qm = summarise(sm);
+    g(0, j) = (qp.peak_n - qm.peak_n) / (2.0 * step);
+    g(1, j) = (qp.t_peak_s - qm.t_peak_s) / (2.0 * step);
+    g(2, j) = (qp.max_travel_m - qm.max_travel_m) / (2.0 * step);
+    gf.col(j) = (on_samples(sp) - on_samples(sm)) / (2.0 * step);
+  }
+  const double v = imp.velocity_m_s;
+  const double sv2 = std::isfinite(td.impact_velocity_se_m_s) ? td.impact_velocity_se_m_s * td.impact_velocity_se_m_s : 0.0;
+  // error = g_u' (u_hat - u) + g_v (e_v + v s).
+  auto variance = [&](const Eigen::VectorXd& gu, double gv) {
+    double var = gu.dot(b.cov_u * gu) + gv * gv * (sv2 + v * v * b.scale_sd * b.scale_sd);
+    if (b.cov_u_scale.size() == np) var += 2.0 * gv * v * gu.dot(b.cov_u_scale);
+    if (b.cov_u_velocity.size() == np) var += 2.0 * gv * gu.dot(b.cov_u_velocity);
+    return std::max(var, 0.0);
+  };
+  const double z = 1.959964;
+  auto interval = [&](double value, int row) {
+    PredictionInterval pi;
+    pi.value = value;
+    pi.se = std::sqrt(variance(g.row(row).head(np).transpose(), g(row, np)));
+    pi.low = value - z * pi.se;
+    pi.high = value + z * pi.se;
+    return pi;
+  };
+  out.peak_force_n = interval(q0.peak_n, 0);
+  out.time_to_peak_s = interval(q0.t_peak_s, 1);
+  out.max_deformation_m = interval(q0.max_travel_m, 2);
+  // The force-time band: parameters, velocity and the trial's clock shift.
+  out.force_low_n.resize(n);
+  out.force_high_n.resize(n);
+  const double sse = std::isfinite(rep.contact_shift_se_s) ? rep.contact_shift_se_s : 0.0;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const double slope = i > 0 && i + 1 < n ? (f0[i + 1] - f0[i - 1]) / (td.t_s[i + 1] - td.t_s[i - 1]) : 0.0;
+    const double sd = std::sqrt(variance(gf.row(i).head(np).transpose(), gf(i, np)) + slope * slope * sse * sse);
+    out.force_low_n[i] = f0[i] - z * sd;
+    out.force_high_n[i] = f0[i] + z * sd;
+  }
+  return out;
+}
+
 
 // Sensitivity of the peak force to -10 % / +10 % on each stiffness and
 // damping. From the exact derivatives, in one dual-number simulation: the
@@ -1654,9 +1879,39 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
     res.estimates.push_back(e);
   }
   std::vector<double> shift_se;
-  covariance(best, fc.space, options, res.params, &res.estimates, &shift_se, &res.warnings);
+  // The error budget: each trial's channels as AR(1) noise, the inputs as
+  // nuisance parameters with their priors (fit.h).
+  std::vector<ResidualBlock> blocks;
+  {
+    int off = 0;
+    for (const Prepared& p : fc.preps) {
+      const int nf = static_cast<int>(p.f_idx.size()), nk = static_cast<int>(p.k_idx.size());
+      blocks.push_back({off, nf});
+      blocks.push_back({off + nf, nk});
+      off += nf + nk;
+    }
+  }
+  const Nuisances nuisances =
+      nuisance_columns(fc.preps, fc.space, options, res.params, best.shifts, best.residuals.size());
+  const ErrorBudget budget = best.jacobian.rows() == best.residuals.size() && best.jacobian.rows() > 0
+                                 ? error_budget(best.jacobian, best.residuals, blocks, nuisances.K, nuisances.P)
+                                 : ErrorBudget{};
+  covariance(best, fc.space, options, res.params, budget, &res.estimates, &shift_se, &res.warnings);
   alternatives(fc.search, fc.space, options, &res);
   res.channels = channel_shares(fc.preps, best.residuals, &res.warnings);
+  // A channel above its noise: the intervals carry its residual (the AR
+  // blocks' variance and correlation), and the parameters say so.
+  for (const auto& c : res.channels)
+    if (c.rms_sigma > 1.5 && c.lag1_autocorrelation > 0.5) {
+      for (auto& e : res.estimates) e.model_limited = true;
+      res.warnings.push_back(fmt::format(
+          "the {} residual stays above its noise ({:.1f} noise SDs RMS, lag-1 autocorrelation {:.2f}): the model "
+          "limits the parameters, and their intervals hold that residual, not the noise alone",
+          c.name, c.rms_sigma, c.lag1_autocorrelation));
+      break;
+    }
+  for (auto& e : res.estimates)
+    if (!e.identifiable) e.ci_low = e.ci_high = kNaN;
   {
     const ModelKind shape = options.model == ModelKind::Model5 ? ModelKind::Model4 : options.model;
     for (const auto& name : parameter_names(shape, true)) {
@@ -1715,6 +1970,37 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
     }
     res.trials.push_back(std::move(rep));
   }
+  // Every trial's predictions with their intervals (in parallel, as above).
+  if (budget.covariance.rows() >= fc.space.size()) {
+    const int np = fc.space.size();
+    PredictionBasis basis;
+    basis.cov_u = budget.covariance.topLeftCorner(np, np);
+    if (nuisances.scale >= 0) {
+      basis.cov_u_scale = budget.nuisance_cross.col(nuisances.scale).head(np);
+      basis.scale_sd = std::sqrt(nuisances.P(nuisances.scale, nuisances.scale));
+    }
+    std::vector<std::exception_ptr> failures(trials.size());
+    parallel_for(trials.size(), options.simulator ? 1 : options.threads, [&](size_t q) {
+      PredictionBasis b = basis;
+      // A training trial's own velocity error is in the fit (the velocity
+      // nuisance is minus that error).
+      for (size_t k = 0; k < fc.preps.size(); ++k)
+        if (fc.preps[k].data == &trials[q] && nuisances.velocity[k] >= 0)
+          b.cov_u_velocity = -budget.nuisance_cross.col(nuisances.velocity[k]).head(np);
+      try {
+        res.trials[q].prediction = prediction_intervals(trials[q], res.trials[q], fc.space, options, best.u, b);
+      } catch (...) {
+        failures[q] = std::current_exception();
+      }
+    });
+    for (size_t q = 0; q < trials.size(); ++q)
+      if (failures[q]) res.warnings.push_back(fmt::format("trial {}: no prediction intervals", trials[q].id));
+  }
+  for (size_t q = 0; q < trials.size(); ++q) {
+    TrialReport& r = res.trials[q];
+    const double video_se = std::isfinite(trials[q].contact_time_se_s) ? trials[q].contact_time_se_s : 0.0;
+    if (std::isfinite(r.contact_shift_se_s)) r.offset_se_s = std::hypot(r.contact_shift_se_s, video_se);
+  }
 
   if (options.sensitivity) {
     Impact imp = fc.preps.front().impact;
@@ -1756,17 +2042,31 @@ std::string FitResult::report() const {
   os << fmt::format("{} fitted to {} by {}: cost {:.6g} over {} residuals, {} simulations, {:.2f} s\n",
                     model_name(model), fmt::join(train_ids, ", "), optimizer, cost, n_residuals, evaluations, seconds);
   os << "parameters:\n";
-  for (const auto& e : estimates)
-    os << fmt::format("  {:<16} {:>12.6g}  {}\n", e.name, e.value,
-                      !e.free ? "(fixed)"
-                              : (std::isfinite(e.rel_se) ? fmt::format("SE {:.3g} ({:.2g} %){}", e.se, 100.0 * e.rel_se,
-                                                                       e.identifiable ? "" : "  NOT IDENTIFIED")
-                                                         : std::string("SE n/a  NOT IDENTIFIED")));
+  for (const auto& e : estimates) {
+    std::string what = "(fixed)";
+    if (e.free && !std::isfinite(e.rel_se)) {
+      what = "SE n/a  NOT IDENTIFIED";
+    } else if (e.free) {
+      what = fmt::format("SE {:.3g} ({:.2g} %)", e.se, 100.0 * e.rel_se);
+      what += e.identifiable ? fmt::format("  95 % [{:.4g}, {:.4g}]", e.ci_low, e.ci_high) : "  NOT IDENTIFIED";
+      if (e.model_limited) what += "  model-limited";
+    }
+    os << fmt::format("  {:<16} {:>12.6g}  {}\n", e.name, e.value, what);
+  }
   os << "trials (rms % peak, peak % diff, time to peak ms diff, max deformation mm diff):\n";
   for (const auto& t : trials)
     os << fmt::format("  {:<10} v {:.2f} m/s{} {:7.2f} {:+7.2f} {:+6.1f} {:+6.1f}\n", t.id, t.impact_velocity_m_s,
                       t.train ? " (train)" : "        ", t.comparison.rms_force_pct_peak,
                       t.comparison.peak_force_pct_diff, t.comparison.time_to_peak_ms_diff, t.max_deformation_mm_diff);
+  os << "predicted, with 95 % intervals (peak force N, time to peak ms, max deformation mm):\n";
+  for (const auto& t : trials) {
+    const Prediction& p = t.prediction;
+    if (!std::isfinite(p.peak_force_n.se)) continue;
+    os << fmt::format("  {:<10} {:.0f} [{:.0f}, {:.0f}]  {:.2f} [{:.2f}, {:.2f}]  {:.1f} [{:.1f}, {:.1f}]\n", t.id,
+                      p.peak_force_n.value, p.peak_force_n.low, p.peak_force_n.high, 1e3 * p.time_to_peak_s.value,
+                      1e3 * p.time_to_peak_s.low, 1e3 * p.time_to_peak_s.high, 1e3 * p.max_deformation_m.value,
+                      1e3 * p.max_deformation_m.low, 1e3 * p.max_deformation_m.high);
+  }
   if (!sensitivity.empty()) {
     os << "sensitivity of peak force to -10 % / +10 %:\n";
     for (const auto& s : sensitivity)

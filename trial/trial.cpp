@@ -770,8 +770,8 @@ FreeFallFit fit_free_fall(const Eigen::VectorXd& t_s, const Eigen::VectorXd& z_m
   out.contact_speed_ci_m_s = student_t_quantile(0.975, used - 2) * std::sqrt(std::max(var, 0.0));
   // The arrival tau solves z0 + v0 tau - g tau^2 / 2 = H where the face
   // descends at s: d tau / d z0 = 1 / s, d tau / d v0 = tau / s.
-  const double tau = out.contact_time_s - t_ref_s;
-  const Eigen::Vector2d grad_t(1.0 / s, tau / s);
+  const double arrival = out.contact_time_s - t_ref_s;
+  const Eigen::Vector2d grad_t(1.0 / s, arrival / s);
   out.contact_speed_se_m_s = std::sqrt(std::max(var, 0.0));
   out.contact_time_se_s = std::sqrt(std::max(grad_t.dot(out.covariance * grad_t), 0.0));
   out.speed_time_cov = grad.dot(out.covariance * grad_t);
