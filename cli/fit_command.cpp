@@ -48,10 +48,15 @@ void add_fit(CLI::App& app, CommandContext& /*ctx*/) {
       ->check(CLI::IsMember({"k1_cubic_n_m3", "r1_unload_n_s_m", "maxwell_k_n_m", "maxwell_tau_s", "k1_unload_ratio"}));
   sub->callback([args] {
     const Session session = capture::read_session(args->session);
-    const auto cameras = pipeline::cameras_of(pipeline::calibrate_session(session));
+    const auto calibration = pipeline::calibrate_session(session);
+    const auto cameras = pipeline::cameras_of(calibration);
+    // The calibration's vertical scale error is part of each trial's error
+    // budget (impact velocity, travel), as in `run`.
+    const auto quality = pipeline::session_calibration_quality(session, calibration);
     std::vector<fitting::TrialData> trials;
     for (const auto& trial : session.trials) {
-      const auto outcome = pipeline::process_trial(session.manifest, trial, cameras);
+      auto outcome = pipeline::process_trial(session.manifest, trial, cameras);
+      trial::add_calibration_uncertainty(outcome.result, quality);
       trials.push_back(pipeline::fitting_trial(session.manifest, outcome.result));
     }
     report::OutputSet out;

@@ -179,6 +179,12 @@ fitting::TrialData fitting_trial(const Manifest& manifest, const trial::TrialRes
   data.gravity_m_s2 = manifest.gravity_m_s2;
   data.force_noise_n = result.force_noise_n;
   data.marker_noise_m = result.freefall_rms_m;
+  // The inputs' error budget: the fit carries them as nuisance parameters.
+  data.impact_velocity_se_m_s = result.impact_velocity_se_m_s;
+  data.contact_time_se_s = result.video_contact_time_se_s;
+  data.velocity_contact_time_cov = result.velocity_contact_time_cov;
+  data.travel_reference_se_m = result.contact_height_se_m;
+  data.calibration_scale_sd = result.calibration_scale_sd;
   const auto& s = result.series;
   // The surface markers' height at rest: their mean before contact. The
   // impactor's travel is already measured from the mat top the cameras see
@@ -261,6 +267,13 @@ report::MatGeometry mat_geometry(const Manifest& manifest) {
   return geometry;
 }
 
+trial::CalibrationQuality session_calibration_quality(const Session& session,
+                                                      const calibration::CalibrationResult& calibration) {
+  double z_min = std::numeric_limits<double>::infinity(), z_max = -z_min;
+  for (const auto& m : session.frame) z_min = std::min(z_min, m.lab_m.z()), z_max = std::max(z_max, m.lab_m.z());
+  return trial::calibration_quality(calibration, z_max - z_min);
+}
+
 diagnosis::SessionState session_state(const Session& session, const std::function<void(const std::string&)>& say) {
   const Manifest& man = session.manifest;
   diagnosis::SessionState state;
@@ -282,9 +295,7 @@ diagnosis::SessionState session_state(const Session& session, const std::functio
   const auto cameras = cameras_of(state.calibration.after);
   // Trials measured through a calibration that failed its own checks, or
   // whose markers reproject far beyond it, are rejected (trial.h's gates).
-  double z_min = std::numeric_limits<double>::infinity(), z_max = -z_min;
-  for (const auto& m : session.frame) z_min = std::min(z_min, m.lab_m.z()), z_max = std::max(z_max, m.lab_m.z());
-  const auto quality = trial::calibration_quality(state.calibration.after, z_max - z_min);
+  const auto quality = session_calibration_quality(session, state.calibration.after);
   for (size_t i = 0; i < session.trials.size(); ++i) {
     const auto& trial = session.trials[i];
     if (say) say(fmt::format("trial {} ({}/{})", trial.spec.id, i + 1, session.trials.size()));
@@ -370,7 +381,8 @@ void apply_fitted_offset(trial::TrialResult& result, const fitting::FitResult& f
     if (t.id != result.id || !std::isfinite(t.contact_shift_se_s)) continue;
     result.video_offset_onset_s = result.video_offset_s;
     result.video_offset_s -= t.contact_shift_s;
-    result.video_offset_se_s = t.contact_shift_se_s;
+    // The fitted contact's SE and the video contact instant's own.
+    result.video_offset_se_s = std::isfinite(t.offset_se_s) ? t.offset_se_s : t.contact_shift_se_s;
   }
 }
 

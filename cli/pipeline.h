@@ -71,6 +71,11 @@ void add_trial_outputs(report::OutputSet& out, const TrialOutcome& outcome);
 // Fz, the impactor face travel below the undeformed mat top and the mat
 // surface travel (both NaN in gaps).
 fitting::TrialData fitting_trial(const Manifest& manifest, const trial::TrialResult& result);
+// The calibration's own quality (trial.h) with the calibration frame's
+// markers' height span: what the trial gates and the velocity's
+// calibration term use.
+trial::CalibrationQuality session_calibration_quality(const Session& session,
+                                                      const calibration::CalibrationResult& calibration);
 // The trial's video_offset_s from the contact instant `fit` placed on the
 // force clock (its contact_shift_s), with its SE; the plate-onset estimate
 // moves to video_offset_onset_s. Unchanged when the fit has no shift for it.
