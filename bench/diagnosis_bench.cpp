@@ -8,7 +8,7 @@
 #include <numbers>
 #include <random>
 
-#include "cli/pipeline.h"
+#include "pipeline/pipeline.h"
 #include "diagnosis/diagnosis.h"
 #include "diagnosis/structure.h"
 #include "samples/generator/synth.h"
@@ -20,8 +20,7 @@ using namespace dropfit;
 // What `dropfit diagnose` does: the pipeline's state up to the Model 4 fit,
 // then the loop on it.
 diagnosis::DiagnosisResult diagnose_session(const Session& session) {
-  auto st = pipeline::session_state(session);
-  pipeline::fit_models(st, session.manifest, {fitting::ModelKind::Model4});
+  const auto st = pipeline::build(session, {.upto = pipeline::Stage::Fits, .models = {fitting::ModelKind::Model4}});
   return diagnosis::diagnose(st);
 }
 

@@ -7,7 +7,8 @@
 
 #include "capture/io.h"
 #include "cli/command.h"
-#include "cli/pipeline.h"
+#include "pipeline/wiring.h"
+#include "pipeline/outputs.h"
 
 namespace dropfit::cli {
 namespace {

@@ -1,15 +1,13 @@
 // dropfit diagnose SESSION --out DIR
-// The pipeline up to the Model 4 fit (calibration with the stage's chosen
-// camera model, trials, fit data, fit: fit.json), then the loop on that state.
-// Closing the loop: each stage's residual traced to the effect the model
-// lacks, added, and the error before and after (diagnosis.json).
+// The session state through the loop with the loop's baseline (Model 4):
+// each stage's residual traced to the effect the model lacks, added, and
+// the error before and after (diagnosis.json); the final model as fit.json.
 #include <fmt/format.h>
 
-#include "capture/io.h"
 #include "cli/command.h"
-#include "cli/pipeline.h"
-#include "diagnosis/diagnosis.h"
-#include "report/output.h"
+#include "core/error.h"
+#include "pipeline/outputs.h"
+#include "pipeline/pipeline.h"
 
 namespace dropfit::cli {
 namespace {
@@ -24,18 +22,16 @@ void add_diagnose(CLI::App& app, CommandContext& /*ctx*/) {
   sub->add_option("session", args->session, "session folder")->required()->check(CLI::ExistingDirectory);
   sub->add_option("--out", args->out, "output folder")->required();
   sub->callback([args] {
-    // The pipeline up to the baseline fit (the state `run` builds), then the loop.
-    const Session session = capture::read_session(args->session);
-    diagnosis::SessionState state = pipeline::session_state(session);
-    for (const auto& note : pipeline::fit_models(state, session.manifest, {fitting::ModelKind::Model4}))
-      fmt::print("note: {}\n", note);
-    const diagnosis::DiagnosisResult result = diagnosis::diagnose(state);
+    pipeline::BuildOptions options;
+    options.models = {fitting::ModelKind::Model4};
+    const pipeline::SessionState state = pipeline::build(args->session, options);
+    for (const auto& note : state.notes) fmt::print("note: {}\n", note);
+    if (!state.loop) throw dropfit::Error(fmt::format("{}: the loop could not run (see the notes above)", args->session));
     report::OutputSet out;
-    out.add("diagnosis.json", diagnosis::diagnosis_json(result));
-    if (const auto* fit = state.fit(fitting::ModelKind::Model4))
-      pipeline::add_fit_outputs(out, "", *fit, state.fit_data, session.manifest.impactor.mass_kg);
+    out.add("diagnosis.json", diagnosis::diagnosis_json(*state.loop));
+    if (const auto* fit = state.final_fit()) pipeline::add_fit_outputs(out, "", *fit, state, state.final_label());
     out.commit(args->out, {args->session});
-    fmt::print("{}", result.report());
+    fmt::print("{}", state.loop->report());
     fmt::print("wrote {}/diagnosis.json\n", args->out);
   });
 }

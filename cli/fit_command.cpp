@@ -1,10 +1,11 @@
 // dropfit fit SESSION --model 1..5|all [--train TRIAL ...] --out DIR
 #include <algorithm>
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
-#include "capture/io.h"
 #include "cli/command.h"
-#include "cli/pipeline.h"
+#include "pipeline/outputs.h"
+#include "pipeline/pipeline.h"
 #include "core/error.h"
 #include "report/results.h"
 
@@ -47,22 +48,17 @@ void add_fit(CLI::App& app, CommandContext& /*ctx*/) {
                   "maxwell_tau_s")
       ->check(CLI::IsMember({"k1_cubic_n_m3", "r1_unload_n_s_m", "maxwell_k_n_m", "maxwell_tau_s", "k1_unload_ratio"}));
   sub->callback([args] {
-    const Session session = capture::read_session(args->session);
-    const auto calibration = pipeline::calibrate_session(session);
-    const auto cameras = pipeline::cameras_of(calibration);
-    // The calibration's vertical scale error is part of each trial's error
-    // budget (impact velocity, travel), as in `run`.
-    const auto quality = pipeline::session_calibration_quality(session, calibration);
-    std::vector<fitting::TrialData> trials;
-    for (const auto& trial : session.trials) {
-      auto outcome = pipeline::process_trial(session.manifest, trial, cameras);
-      trial::add_calibration_uncertainty(outcome.result, quality);
-      trials.push_back(pipeline::fitting_trial(session.manifest, outcome.result));
-    }
+    // The trials as every command sees them (the state through the loop,
+    // with its baseline), then the models asked, with this command's options.
+    pipeline::BuildOptions build;
+    build.models = {fitting::ModelKind::Model4};
+    const pipeline::SessionState state = pipeline::build(args->session, build);
+    if (state.accepted() == 0) throw Error(fmt::format("{}: no accepted trial to fit ({})", args->session,
+                                                      fmt::join(state.notes, "; ")));
     report::OutputSet out;
     const auto models = models_from(args->model);
     for (const auto model : models) {
-      auto options = pipeline::fit_options(session.manifest, model);
+      auto options = pipeline::fit_options(state.session.manifest, model);
       options.train_ids = args->train;
       options.optimizer = args->optimizer == "annealing" ? fitting::Optimizer::Annealing : fitting::Optimizer::Ceres;
       options.leave_one_out = args->leave_one_out;
@@ -72,18 +68,15 @@ void add_fit(CLI::App& app, CommandContext& /*ctx*/) {
       if (std::find(args->effects.begin(), args->effects.end(), "maxwell_k_n_m") != args->effects.end() &&
           std::find(args->effects.begin(), args->effects.end(), "maxwell_tau_s") == args->effects.end())
         options.effects.maxwell_tau_s = 0.025;  // a foam's relaxation time when tau is not fitted
-      const auto fit = fitting::fit(trials, options);
+      const auto fit = fitting::fit(state.fit_data, options);
       // One model: OUT/fit.json. All: OUT/fits/modelN/fit.json, and Model 4
       // (the paper's choice) also as OUT/fit.json.
-      if (models.size() == 1 || model == fitting::ModelKind::Model4) {
-        pipeline::add_fit_outputs(out, "", fit, trials, session.manifest.impactor.mass_kg);
-      }
-      if (models.size() > 1) {
-        pipeline::add_fit_outputs(out, "fits/" + fitting::model_name(model) + "/", fit, trials,
-                                  session.manifest.impactor.mass_kg);
-      }
+      if (models.size() == 1 || model == fitting::ModelKind::Model4) pipeline::add_fit_outputs(out, "", fit, state);
+      if (models.size() > 1) pipeline::add_fit_outputs(out, "fits/" + fitting::model_name(model) + "/", fit, state);
       fmt::print("{}", fit.report());
     }
+    // The trials the fit saw, as `process` and `run` report them.
+    pipeline::add_trial_outputs(out, state);
     out.commit(args->out, {args->session});
     fmt::print("wrote {}\n", args->out);
   });

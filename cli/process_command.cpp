@@ -1,10 +1,13 @@
 // dropfit process SESSION --out DIR
+// The session state through the loop (the trial's clock offset is where the
+// final mat model places its contact), written as its trial views:
+// trials/T/trial.json, series.csv, trajectories, summary.csv.
 #include <fmt/format.h>
 
-#include "capture/io.h"
 #include "cli/command.h"
-#include "cli/pipeline.h"
-#include "report/results.h"
+#include "core/progress.h"
+#include "pipeline/outputs.h"
+#include "pipeline/pipeline.h"
 
 namespace dropfit::cli {
 namespace {
@@ -23,21 +26,19 @@ void add_process(CLI::App& app, CommandContext& /*ctx*/) {
   sub->add_option("--max-tilt", args->max_tilt_deg, "reject trials tilting more than this, degrees")
       ->check(CLI::PositiveNumber);
   sub->callback([args] {
-    const Session session = capture::read_session(args->session);
-    const auto calibration = pipeline::calibrate_session(session);
-    const auto cameras = pipeline::cameras_of(calibration);
-
+    Progress progress;
+    pipeline::BuildOptions options;
+    options.max_tilt_deg = args->max_tilt_deg;
+    options.models = {fitting::ModelKind::Model4};  // the loop's baseline: all the trial values need
+    options.say = [&](const std::string& detail) { progress.update("process", detail); };
+    const pipeline::SessionState state = pipeline::build(args->session, options);
+    progress.done();
     report::OutputSet out;
-    pipeline::add_calibration_outputs(out, calibration, session.manifest.video);
-    std::vector<trial::TrialResult> results;
-    for (const auto& trial : session.trials) {
-      auto outcome = pipeline::process_trial(session.manifest, trial, cameras, args->max_tilt_deg);
-      pipeline::add_trial_outputs(out, outcome);
-      results.push_back(std::move(outcome.result));
-    }
-    out.add("summary.csv", report::summary_csv(results));
+    pipeline::add_calibration_outputs(out, state.calibration.after, state.session.manifest.video);
+    pipeline::add_trial_outputs(out, state);
     out.commit(args->out, {args->session});
-    for (const auto& r : results) {
+    for (const auto& t : state.trials) {
+      const auto& r = t.result;
       fmt::print("{:<10} {:>6.3f} m/s  {:>6.1f} mm  {:>7.0f} N  tilt {:>4.1f} deg  {}\n", r.id, r.impact_velocity_m_s,
                  r.max_deformation_m * 1e3, r.peak_force_n, r.tilt_deg,
                  r.accepted ? "accepted" : "REJECTED: " + r.reject_reason);

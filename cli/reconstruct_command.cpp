@@ -1,9 +1,11 @@
 // dropfit reconstruct SESSION --out DIR
+// The session state through reconstruction: the calibration stage's camera
+// model and every trial's 3-D trajectories with their residuals.
 #include <fmt/format.h>
 
-#include "capture/io.h"
 #include "cli/command.h"
-#include "cli/pipeline.h"
+#include "pipeline/outputs.h"
+#include "pipeline/pipeline.h"
 
 namespace dropfit::cli {
 namespace {
@@ -18,20 +20,14 @@ void add_reconstruct(CLI::App& app, CommandContext& /*ctx*/) {
   sub->add_option("session", args->session, "session folder")->required()->check(CLI::ExistingDirectory);
   sub->add_option("--out", args->out, "output folder")->required();
   sub->callback([args] {
-    const Session session = capture::read_session(args->session);
-    // The calibration stage's chosen camera model (distortion included):
-    // every point is undistorted with it before triangulation.
-    const auto calibration = pipeline::calibrate_session(session);
-    const auto cameras = pipeline::cameras_of(calibration);
-
+    pipeline::BuildOptions options;
+    options.upto = pipeline::Stage::Reconstruction;
+    const pipeline::SessionState state = pipeline::build(args->session, options);
     report::OutputSet out;
-    pipeline::add_calibration_outputs(out, calibration, session.manifest.video);
-    for (const auto& trial : session.trials) {
-      const auto trajectories = reconstruction::reconstruct(cameras, trial.tracks.uv_px, trial.tracks.n_points());
-      pipeline::add_reconstruction_outputs(out, trial.spec.id, trajectories, session.manifest.video.points);
-    }
+    pipeline::add_calibration_outputs(out, state.calibration.after, state.session.manifest.video);
+    pipeline::add_reconstruction_outputs(out, state);
     out.commit(args->out, {args->session});
-    fmt::print("reconstructed {} trials; wrote {}\n", session.trials.size(), args->out);
+    fmt::print("reconstructed {} trials; wrote {}\n", state.trials.size(), args->out);
   });
 }
 

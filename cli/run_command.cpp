@@ -12,7 +12,8 @@
 #include <thread>
 
 #include "cli/command.h"
-#include "cli/pipeline.h"
+#include "pipeline/outputs.h"
+#include "pipeline/pipeline.h"
 #include "core/progress.h"
 
 namespace dropfit::cli {
@@ -37,8 +38,8 @@ void add_run(CLI::App& app, CommandContext& ctx) {
     const auto start = std::chrono::steady_clock::now();
     const int cores = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
     const int jobs = args->jobs > 0 ? args->jobs : cores;
-    pipeline::RunOptions options;
-    options.diagnose = !args->no_diagnose;
+    pipeline::BuildOptions options;
+    if (args->no_diagnose) options.upto = pipeline::Stage::Fits;
 
     // The same folder named twice is one session.
     {
@@ -79,19 +80,24 @@ void add_run(CLI::App& app, CommandContext& ctx) {
       workers.emplace_back([&] {
         for (size_t i; (i = next++) < n;) {
           try {
+            pipeline::BuildOptions session_options = options;
+            const std::string label = fs::path(args->sessions[i]).filename().string();
+            session_options.say = [&progress, label](const std::string& detail) { progress.update(label, detail); };
+            const pipeline::SessionState state = pipeline::build(args->sessions[i], session_options);
             report::OutputSet out;
-            summaries[i] = pipeline::run_session(args->sessions[i], options, out, &progress);
+            pipeline::add_run_outputs(out, state);
             std::vector<std::string> protected_dirs(args->sessions.begin(), args->sessions.end());
             out.commit(out_dirs[i], protected_dirs);
+            summaries[i] = pipeline::summarise(state);
             // Results are written (the report says why), but a session with
-            // no usable trial or a failed model fit is not a success.
+            // no usable trial or no final model is not a success; a model
+            // that failed beside a final one is a note.
             const auto& s = summaries[i];
             if (s.accepted == 0) {
               errors[i] = fmt::format("no usable trial ({} of {} rejected, reasons in {}/report.html)", s.trials,
                                       s.trials, out_dirs[i]);
-            } else if (s.failed_fits > 0) {
-              errors[i] = fmt::format("{} model fit(s) failed (see the notes and {}/report.html)", s.failed_fits,
-                                      out_dirs[i]);
+            } else if (!s.final_model) {
+              errors[i] = fmt::format("no mat model could be fitted (see the notes and {}/report.html)", out_dirs[i]);
             } else {
               ok[i] = true;
             }

@@ -12,7 +12,7 @@
 #include <sstream>
 
 #include "cli/command.h"
-#include "cli/pipeline.h"
+#include "pipeline/pipeline.h"
 #include "core/error.h"
 #include "report/export.h"
 #include "report/output.h"
@@ -59,7 +59,7 @@ void add_simulate(CLI::App& app, CommandContext& /*ctx*/) {
     impact.output_dt_s = args->dt_s;
     impact.first_output_s = args->first_output_s;
     impact.gravity_m_s2 = args->gravity_m_s2;
-    const fitting::Simulation sim = pipeline::simulate_fitted(fit, impact);
+    const fitting::Simulation sim = pipeline::simulate_fitted(fit.model, fit.params, impact);
     const std::string csv = report::simulation_csv(sim);
     if (args->out.empty()) {
       fmt::print("{}", csv);

@@ -108,7 +108,7 @@ std::string diagnosis_json(const DiagnosisResult& result) {
   return j.dump(2) + "\n";
 }
 
-std::vector<PlateTrial> plate_trials(const SessionState& state, double offset_s) {
+std::vector<PlateTrial> plate_trials(const SessionData& state, double offset_s) {
   std::vector<PlateTrial> plates;
   const double fps = state.frame_rate_hz;
   for (const auto& tr : state.trials) {
@@ -224,7 +224,7 @@ std::optional<SyncDiagnosis> rejudge_sync(const std::vector<trial::TrialResult>&
 
 }  // namespace
 
-DiagnosisResult diagnose(const SessionState& state, const DiagnosisOptions& options) {
+DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& options) {
   DiagnosisResult result;
   MatStageOptions mo = options.mat_stage;
   if (!options.mat_stage_fit_set) mo.fit = state.baseline_fit_options;
@@ -326,10 +326,12 @@ DiagnosisResult diagnose(const SessionState& state, const DiagnosisOptions& opti
           sync = std::move(refit);
       flush();
       append(result, md);
-      if (!md.effects.empty() && md.fit_after) result.mat_fit = md.fit_after;
+      const bool corrected = correction.drift || correction.gain != 1.0;
+      if ((!md.effects.empty() || corrected) && md.fit_after) result.mat_fit = md.fit_after;
     }
   }
   flush();
+  result.plate_correction = correction;
   return result;
 }
 

@@ -162,6 +162,18 @@ struct Remaining {
   double frequency_hz = std::numeric_limits<double>::quiet_NaN();  // its strongest period, when periodic
 };
 
+// A plate correction the force-plate stage keeps (see ForceplateDiagnosis).
+struct PlateCorrection {
+  double gain = 1.0;               // the plate reads gain x the true force
+  // Drift (N) = drift_n_s * (t - drift_origin_s) for t >= drift_origin_s when
+  // drift_from_contact, else drift_offset_n + drift_n_s * t over the record.
+  bool drift = false;
+  bool drift_from_contact = false;
+  double drift_n_s = 0.0, drift_offset_n = 0.0;
+  // Corrected force: (fz - drift(t)) / gain; contact_time_s is the trial's.
+  Eigen::VectorXd apply(const Eigen::VectorXd& t_s, const Eigen::VectorXd& fz_n, double contact_time_s) const;
+};
+
 struct DiagnosisResult {
   std::string baseline_model;    // the mat model the loop started from, "model4"
   std::vector<Effect> effects;   // in the order they were added
@@ -172,9 +184,13 @@ struct DiagnosisResult {
   // Stages not assessed because an earlier stage's residual stayed
   // unexplained ("upstream unresolved"; a note says which).
   std::vector<std::string> not_assessed;
-  // The mat fit with the kept mat effects (absent when the mat stage did not
-  // run or kept nothing): the closed loop's model of the mat.
+  // The mat fit with the kept mat effects, on the force as the plate stage
+  // corrected it (absent when the mat stage did not run, or kept no effect
+  // and the plate needed no correction): the closed loop's model of the mat.
   std::optional<fitting::FitResult> mat_fit;
+  // The plate correction the force-plate stage kept (identity when none);
+  // the pipeline applies it to the trial results and every fit.
+  PlateCorrection plate_correction;
   std::string report() const;    // a few human lines
   const Effect* find(const std::string& name) const;
 };
@@ -267,16 +283,6 @@ struct PlateTrial {
   double max_deformation_time_s = std::numeric_limits<double>::quiet_NaN();  // force clock
 };
 
-struct PlateCorrection {
-  double gain = 1.0;               // the plate reads gain x the true force
-  // Drift (N) = drift_n_s * (t - drift_origin_s) for t >= drift_origin_s when
-  // drift_from_contact, else drift_offset_n + drift_n_s * t over the record.
-  bool drift = false;
-  bool drift_from_contact = false;
-  double drift_n_s = 0.0, drift_offset_n = 0.0;
-  // Corrected force: (fz - drift(t)) / gain; contact_time_s is the trial's.
-  Eigen::VectorXd apply(const Eigen::VectorXd& t_s, const Eigen::VectorXd& fz_n, double contact_time_s) const;
-};
 
 // The clock offset the contact-phase trajectory estimate (trial.h,
 // video_offset_trajectory_s) reads on the model's own impact, where the
@@ -443,10 +449,11 @@ struct TrialState {
   std::optional<forceplate::ForceTrial> force;  // the processed force record; empty when unreadable
 };
 
-// The session state, built once by the pipeline (cli/pipeline.h,
-// pipeline::session_state and pipeline::fit_models) and handed to the loop,
-// so that diagnosis.json and fit.json describe the same data and fit.
-struct SessionState {
+// What the loop reads of a session: the measured data and the fits made of
+// it. The pipeline (pipeline/pipeline.h) owns the whole session state, which
+// extends this, and hands it to the loop, so that diagnosis.json and fit.json
+// describe the same data and fits.
+struct SessionData {
   std::string name;
   // The manifest's constants the stages use.
   double impactor_mass_kg = 24.0;
@@ -489,11 +496,11 @@ struct DiagnosisOptions {
 // unexplained (remaining structure) leaves every later stage "not
 // assessed: upstream unresolved" (a note, and no effects named from bad
 // inputs). Throws dropfit::Error when no trial is accepted.
-DiagnosisResult diagnose(const SessionState& state, const DiagnosisOptions& options = {});
+DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& options = {});
 
 // The plate stage's trials from a state, on the force clock with the
 // declared clock relation shifted by offset_s (video minus force).
-std::vector<PlateTrial> plate_trials(const SessionState& state, double offset_s);
+std::vector<PlateTrial> plate_trials(const SessionData& state, double offset_s);
 
 // Merges a stage's diagnosis into the result (unexplained when the stage has
 // remaining structure).

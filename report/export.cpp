@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <Eigen/Dense>
 #include <nlohmann/json.hpp>
 
 #include "core/error.h"
@@ -173,7 +174,40 @@ std::string joint(const std::string& indent, const std::string& name, double k, 
 }
 }  // namespace
 
-std::string mjcf_xml(fitting::ModelKind kind, const fitting::MatParams& p, const MatGeometry& g) {
+double mjcf_max_stable_timestep_s(fitting::ModelKind kind, const fitting::MatParams& p) {
+  if (kind != fitting::ModelKind::Model3 && kind != fitting::ModelKind::Model4) return NAN;
+  const bool four = kind == fitting::ModelKind::Model4;
+  // The chain's stiffness and mass matrices, bottom layer first; each spring
+  // joins a body to the one below it (the bottom one to the ground).
+  std::vector<double> k, m;
+  if (four) {
+    k = {p.k3_n_m, p.k2_n_m, p.k1_n_m};
+    m = {p.m2_kg, p.m1_kg, kSurfaceMassKg};
+  } else {
+    k = {p.k2_n_m, p.k1_n_m};
+    m = {p.m2_kg, p.m1_kg};
+  }
+  const auto n = static_cast<Eigen::Index>(k.size());
+  Eigen::MatrixXd K = Eigen::MatrixXd::Zero(n, n), M = Eigen::MatrixXd::Zero(n, n);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    M(i, i) = m[i];
+    K(i, i) += k[i];
+    if (i > 0) {
+      K(i - 1, i - 1) += k[i];
+      K(i - 1, i) -= k[i];
+      K(i, i - 1) -= k[i];
+    }
+  }
+  Eigen::GeneralizedSelfAdjointEigenSolver<Eigen::MatrixXd> eig(K, M, Eigen::EigenvaluesOnly);
+  if (eig.info() != Eigen::Success) return NAN;
+  const double omega_max = std::sqrt(eig.eigenvalues().maxCoeff());
+  // MuJoCo's Euler integrator is semi-implicit in position with the joint
+  // damping implicit, so the undamped springs set the limit: omega dt < 2.
+  return 2.0 / omega_max;
+}
+
+std::string mjcf_xml(fitting::ModelKind kind, const fitting::MatParams& p, const MatGeometry& g,
+                     const std::vector<std::string>& warnings) {
   if (kind != fitting::ModelKind::Model3 && kind != fitting::ModelKind::Model4) {
     throw Error(fmt::format("MJCF export is for Models 3 and 4 (layered mats), not {}", fitting::model_name(kind)));
   }
@@ -193,16 +227,40 @@ std::string mjcf_xml(fitting::ModelKind kind, const fitting::MatParams& p, const
   const double ref_bottom = (p.m1_kg + p.m2_kg + surface_kg) * gravity_m_s2 / k_bottom;
   const double ref_top = (p.m1_kg + surface_kg) * gravity_m_s2 / k_top;
   const double ref_surface = surface_kg * gravity_m_s2 / p.k1_n_m;
+  // The step: the contact's nearly hard setting wants 1e-5 s; a chain whose
+  // fastest mode needs less gets a quarter of its stability limit.
+  const double max_step_s = mjcf_max_stable_timestep_s(kind, p);
+  const double step_s = std::min(kTimestepS, 0.25 * max_step_s);
+  // What a MuJoCo joint spring cannot carry: MuJoCo's joint springs are
+  // linear, so the fitted effect terms are left out and said so.
+  std::vector<std::string> notes = warnings;
+  if (p.k1_cubic_n_m3 != 0.0)
+    notes.push_back(fmt::format("k1_cubic_n_m3 = {:.6g} (stiffening) is left out: a joint spring is linear",
+                                p.k1_cubic_n_m3));
+  if (p.r1_unload_n_s_m >= 0.0)
+    notes.push_back(fmt::format("r1_unload_n_s_m = {:.6g} (unloading damping) is left out", p.r1_unload_n_s_m));
+  if (p.maxwell_k_n_m > 0.0 && p.maxwell_tau_s > 0.0)
+    notes.push_back(fmt::format("the Maxwell arm (maxwell_k_n_m = {:.6g}, maxwell_tau_s = {:.6g}) is left out",
+                                p.maxwell_k_n_m, p.maxwell_tau_s));
+  if (p.k1_unload_ratio > 0.0)
+    notes.push_back(fmt::format("k1_unload_ratio = {:.6g} (hysteresis) is left out", p.k1_unload_ratio));
+  if (notes.size() > warnings.size())
+    notes.push_back("dropfit's co-simulation API (fitting/cosim.h) steps the whole model with these terms");
   std::string xml;
   xml += "<?xml version=\"1.0\" encoding=\"utf-8\"?>\n";
   xml += fmt::format("<!-- dropfit {} landing mat: layers on vertical slide joints; stiffness N/m, damping N s/m, mass kg.\n"
                      "     Each joint's spring is the model element below that body; springref holds the mat's own\n"
                      "     weight at q = 0. The plate force is mat_bottom_z's passive force minus the mat's weight.\n"
-                     "     Contacts on mat_contact are nearly hard (solref 2e-5 s): keep the timestep at 1e-5 s. -->\n",
-                     fitting::model_name(kind));
+                     "     Contacts on mat_contact are nearly hard (solref 2e-5 s): keep the timestep at {:.3g} s.\n"
+                     "     Largest stable timestep: {:.3g} s (2 / the fastest mode of the mat's springs and masses;\n"
+                     "     also custom numeric dropfit_max_stable_timestep_s). -->\n",
+                     fitting::model_name(kind), step_s, max_step_s);
+  for (const auto& n : notes) xml += fmt::format("<!-- WARNING: {} -->\n", n);
   xml += "<mujoco model=\"dropfit_mat\">\n";
-  xml += fmt::format("  <option timestep=\"{:.6g}\" gravity=\"0 0 -{}\" integrator=\"Euler\"/>\n", kTimestepS,
+  xml += fmt::format("  <option timestep=\"{:.6g}\" gravity=\"0 0 -{}\" integrator=\"Euler\"/>\n", step_s,
                      gravity_m_s2);
+  xml += fmt::format("  <custom>\n    <numeric name=\"dropfit_max_stable_timestep_s\" data=\"{:.6g}\"/>\n  </custom>\n",
+                     max_step_s);
   xml += "  <worldbody>\n";
   xml += fmt::format("    <body name=\"mat_bottom\" pos=\"0 0 {:.6g}\">\n", hb);
   xml += joint("      ", "mat_bottom_z", k_bottom, r_bottom, ref_bottom);

@@ -1,6 +1,6 @@
 #pragma once
 // Parameter files that simulators load: the canonical fit.json parameters
-// (named with their units, as in shared/spec/results-format.md) and a MuJoCo
+// (named with their units, docs/formats.md) and a MuJoCo
 // MJCF model of the layered mat (Models 3 and 4).
 #include <string>
 #include <utility>
@@ -40,7 +40,17 @@ struct MatGeometry {
 // vertical slide joint whose stiffness and damping are the model's element
 // below it, with the layer's mass; Model 4 adds a light "mat_surface" body
 // on a slide joint (k1, r1) that a foot or impactor lands on. Throws
-// dropfit::Error for Models 1, 2 and 5.
-std::string mjcf_xml(fitting::ModelKind kind, const fitting::MatParams& params, const MatGeometry& geometry);
+// dropfit::Error for Models 1, 2 and 5. The file states, in a comment and
+// as custom numeric dropfit_max_stable_timestep_s, the largest timestep at
+// which its springs integrate stably (mjcf_max_stable_timestep_s), and as
+// WARNING comments `warnings` (e.g. a parameter at its bound) and every
+// effect term a linear joint spring leaves out.
+std::string mjcf_xml(fitting::ModelKind kind, const fitting::MatParams& params, const MatGeometry& geometry,
+                     const std::vector<std::string>& warnings = {});
+
+// 2 / omega_max of the exported chain (its stiffness over its masses,
+// Model 4's light surface body included): MuJoCo's Euler integrator is
+// unstable above it. NaN for Models 1, 2 and 5.
+double mjcf_max_stable_timestep_s(fitting::ModelKind kind, const fitting::MatParams& params);
 
 }  // namespace dropfit::report

@@ -166,6 +166,10 @@ std::string trial_json(const trial::TrialResult& r) {
               {"freefall_rms_m", number_or_null(r.freefall_rms_m)},
               {"freefall_frames", r.freefall_frames},
               {"impulse_ratio", number_or_null(r.impulse_ratio)}};
+  if (!r.force_correction.empty()) {
+    doc["force_correction"] = r.force_correction;
+    doc["peak_force_uncorrected_n"] = number_or_null(r.peak_force_uncorrected_n);
+  }
   return doc.dump(2) + "\n";
 }
 
@@ -222,7 +226,7 @@ json characteristics_json(const fitting::Characteristics& c) {
 }
 }  // namespace
 
-std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg) {
+std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg, const std::string& label) {
   json parameters = json::object();
   for (const auto& [name, value] : named_parameters(fit.model, fit.params)) parameters[name] = value;
   json estimates = json::array();
@@ -233,10 +237,21 @@ std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg) {
                          {"rel_se", number_or_null(e.rel_se)},
                          {"free", e.free},
                          {"identifiable", e.identifiable},
+                         {"at_bound", e.at_bound},
                          {"ci_low_95", number_or_null(e.ci_low)},
                          {"ci_high_95", number_or_null(e.ci_high)},
                          {"se_white_noise", number_or_null(e.se_white)},
                          {"model_limited", e.model_limited}});
+  }
+  // A parameter the search box stopped, not the data, is said in the file
+  // a simulator loads, whatever the fit's own warnings say.
+  std::vector<std::string> warnings = fit.warnings;
+  for (const auto& e : fit.estimates) {
+    if (!e.at_bound || !e.free) continue;
+    const std::string w = fmt::format("{} = {:.6g} sits at the bound of its search range: the bound, not the data, "
+                                      "sets it",
+                                      e.name, e.value);
+    if (std::find(warnings.begin(), warnings.end(), w) == warnings.end()) warnings.push_back(w);
   }
   json trials = json::array();
   for (const auto& t : fit.trials) {
@@ -284,6 +299,7 @@ std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg) {
     alternatives.push_back({{"parameters", p}, {"cost", a.cost}, {"delta_chi2", a.delta_chi2}});
   }
   json doc = {{"model", fitting::model_name(fit.model)},
+              {"label", label.empty() ? fitting::model_name(fit.model) : label},
               {"train", fit.train_ids},
               {"impactor_mass_kg", impactor_mass_kg},
               {"parameters", parameters},
@@ -294,7 +310,7 @@ std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg) {
               {"channels", channels},
               {"identifiable", fit.alternatives.empty()},
               {"alternatives", alternatives},
-              {"warnings", fit.warnings},
+              {"warnings", warnings},
               {"optimizer", fit.optimizer},
               {"evaluations", fit.evaluations},
               {"seconds", fit.seconds}};

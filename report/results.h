@@ -50,10 +50,12 @@ std::string series_csv(const trial::Series& series);
 // peak_force_n,time_to_peak_s,tilt_deg,video_offset_ms,reject_reason
 std::string summary_csv(const std::vector<trial::TrialResult>& trials);
 
-// OUT/fit.json: the model, training trials, canonical parameters (named with
-// units, report/export.h) and per-trial errors as in the spec, plus standard
-// errors, identifiability warnings, key characteristics and sensitivity.
-std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg);
+// OUT/fit.json: the model, its label (the model's name, or "closed_loop" for
+// Model 4 with the effects the loop kept), training trials, canonical
+// parameters (named with units, report/export.h) and per-trial errors, plus
+// standard errors, identifiability and bound warnings, key characteristics
+// and sensitivity.
+std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg, const std::string& label = "");
 // Measured and simulated series of one trial from contact:
 // t_s,measured_fz_n,simulated_fz_n,measured_impactor_m,simulated_impactor_m,measured_surface_m,simulated_surface_m,
 // simulated_layer1_m,simulated_layer2_m (the layers' travel, zero for a model without layers)

@@ -1,6 +1,7 @@
 #include "report/session_report.h"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <cmath>
 
@@ -40,6 +41,29 @@ void summary_section(HtmlDocument& doc, const SessionReport& r) {
   doc.table({"trial", "impact velocity (m/s, 95 % CI)", "max deformation (m)", "peak force (N)",
              "time to peak (ms)", "tilt (deg)", "video - force clock (ms)", "status"},
             rows, "Vertical drop test results (the shape of the paper's Table 1)", 1);
+}
+
+// The headline: the final model's parameters with their standard errors,
+// the effects it carries, and its warnings.
+void final_model_section(HtmlDocument& doc, const SessionReport& r) {
+  if (!r.final_fit) return;
+  const fitting::FitResult& fit = *r.final_fit;
+  doc.heading("The mat model");
+  doc.paragraph(fmt::format(
+      "The result of this session is {} ({}), trained on {}; fit.json and mat.mjcf.xml hold it. {}",
+      r.final_label == "closed_loop" ? "the closed loop's model" : "the " + fitting::model_name(fit.model) + " fit",
+      r.final_label == "closed_loop" ? fitting::model_name(fit.model) + " with the mat effects the loop kept"
+                                     : "no mat effect was needed",
+      fmt::join(fit.train_ids, ", "),
+      "Every model's own fit is under fits/."));
+  std::vector<std::vector<std::string>> rows;
+  for (const auto& e : fit.estimates) {
+    std::string note = !e.identifiable ? "not identified" : e.at_bound ? "at its bound" : e.free ? "" : "fixed";
+    rows.push_back({e.name, fmt::format("{:.4g}", e.value), e.free && std::isfinite(e.se) ? fmt::format("{:.2g}", e.se) : "-",
+                    note});
+  }
+  doc.table({"parameter", "value", "standard error", "note"}, rows, "The final model's parameters (SI units)", 1);
+  for (const auto& w : fit.warnings) doc.note(w);
 }
 
 void calibration_section(HtmlDocument& doc, const calibration::CalibrationResult& c) {
@@ -266,6 +290,7 @@ std::string session_report_html(const SessionReport& r) {
                             r.session_path));
   for (const auto& n : r.notes) doc.note(n);
   summary_section(doc, r);
+  final_model_section(doc, r);
   if (r.calibration) calibration_section(doc, *r.calibration);
   trials_section(doc, r);
   parameters_section(doc, r);

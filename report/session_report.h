@@ -5,6 +5,7 @@
 // each model overlaid (Figures 3-7) and the key characteristics, the fitted
 // parameters with uncertainties (Table 2's shape), predictions across
 // trials, sensitivity, and closing the loop.
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -27,6 +28,10 @@ struct SessionReport {
   std::vector<trial::TrialResult> trials;
   std::vector<fitting::TrialData> fit_data;   // the fitter's view of each trial (measured)
   std::vector<fitting::FitResult> fits;       // one per model, in model order
+  // The final model (the result): the closed loop's fit when the loop kept
+  // mat effects, else Model 4; the report's headline.
+  std::optional<fitting::FitResult> final_fit;
+  std::string final_label;                    // "closed_loop" or the model's name
   // Closing the loop (empty when not run).
   bool loop_run = false;
   std::string loop_baseline_model;

@@ -66,7 +66,7 @@ ProcessResult MainRun::result_;
 TEST_F(MainRun, SucceedsAndWritesEveryOutput) {
   ASSERT_EQ(result_.exit_code, 0) << result_.output;
   for (const char* file : {"calibration.json", "dlt_coefficients.csv", "summary.csv", "fit.json", "report.html",
-                           "mat_model4.mjcf.xml", "trials/trial3/trial.json", "trials/trial3/series.csv"}) {
+                           "mat.mjcf.xml", "fits/model4/mat.mjcf.xml", "trials/trial3/trial.json", "trials/trial3/series.csv"}) {
     EXPECT_TRUE(fs::exists(out_ / file)) << file;
   }
   for (int m = 1; m <= 5; ++m) EXPECT_TRUE(fs::exists(out_ / "fits" / ("model" + std::to_string(m)) / "fit.json")) << m;

@@ -12,7 +12,7 @@
 #include <nlohmann/json.hpp>
 #include <numbers>
 
-#include "cli/pipeline.h"
+#include "pipeline/pipeline.h"
 #include "samples/generator/synth.h"
 
 namespace dropfit::diagnosis {
@@ -32,7 +32,7 @@ synth::SyntheticSession session_with(const std::vector<std::pair<std::string, do
 // The loop runs on the state the pipeline builds (calibration stage's
 // choice, every trial, the fits' data).
 DiagnosisResult diagnose(const Session& session, DiagnosisOptions options = {}) {
-  return dropfit::diagnosis::diagnose(pipeline::session_state(session), options);
+  return dropfit::diagnosis::diagnose(pipeline::build(session, {.upto = pipeline::Stage::Trials}), options);
 }
 
 double error(const ErrorSet& e, const std::string& key) {
@@ -196,7 +196,7 @@ TEST(Diagnosis, RateDependence) {
 // candidate is rejected ("the other channel gets worse"). Not yet traced.
 TEST(Diagnosis, DISABLED_LayerMass) {
   const auto s = session_with({{"layer_mass", -1.5}}, fitting::ModelKind::Model3);
-  const SessionState state = pipeline::session_state(s.session);
+  const auto state = pipeline::build(s.session, {.upto = pipeline::Stage::Trials});
   DiagnosisOptions o;
   o.mat_stage.fit = state.baseline_fit_options;
   o.mat_stage.fit.model = fitting::ModelKind::Model3;

@@ -11,7 +11,7 @@
 #include <numbers>
 
 #include "capture/io.h"
-#include "cli/pipeline.h"
+#include "pipeline/pipeline.h"
 #include "diagnosis/diagnosis.h"
 
 namespace dropfit::diagnosis {
@@ -70,7 +70,7 @@ namespace {
 // of those stages.
 std::vector<std::string> upstream_effects(const std::string& name, DiagnosisResult* out = nullptr) {
   const Session s = capture::read_session(validation(name));
-  const SessionState state = pipeline::session_state(s);
+  const auto state = pipeline::build(s, {.upto = pipeline::Stage::Trials});
   DiagnosisOptions o;
   o.mat = false;
   const DiagnosisResult r = diagnose(state, o);
@@ -160,7 +160,7 @@ TEST(ValidationUpstream, ImpulseBalanceIsOneOnCleanSessions) {
   for (const std::string name : {"v1-realistic", "v2-linear-control", "v3-hysteresis", "v4-rate"}) {
     if (!have(name)) GTEST_SKIP() << "../shared/validation absent";
     const Session s = capture::read_session(validation(name));
-    const SessionState state = pipeline::session_state(s);
+    const auto state = pipeline::build(s, {.upto = pipeline::Stage::Trials});
     int n = 0;
     for (const PlateTrial& t : plate_trials(state, 0.0)) {
       const ImpulseBalance b = impulse_balance(t, {}, state.impactor_mass_kg, state.gravity_m_s2);
@@ -193,7 +193,7 @@ TEST(ValidationLoop, EachSessionIsNamedExactly) {
       {"v6-formats-drift-scale", {"baseline_drift", "force_scale", "stiffness_nonlinearity"}}};
   for (const auto& [name, expected] : cases) {
     if (!have(name)) GTEST_SKIP() << "../shared/validation absent";
-    const DiagnosisResult r = diagnose(pipeline::session_state(capture::read_session(validation(name))),
+    const DiagnosisResult r = diagnose(pipeline::build(capture::read_session(validation(name)), {.upto = pipeline::Stage::Trials}),
                                        DiagnosisOptions{});
     std::vector<std::string> names;
     for (const auto& e : r.effects) names.push_back(e.name);
@@ -231,7 +231,7 @@ TEST(ValidationLoop, APlateRingingIsLeftUnexplainedWithItsFrequency) {
       for (int c = 4; c < 8; ++c) t.force.data(k, c) += ring / 4.0;  // Fz1..Fz4
     }
   }
-  const DiagnosisResult r = diagnose(pipeline::session_state(s), DiagnosisOptions{});
+  const DiagnosisResult r = diagnose(pipeline::build(s, {.upto = pipeline::Stage::Trials}), DiagnosisOptions{});
   EXPECT_TRUE(r.effects.empty()) << r.report();
   EXPECT_TRUE(r.unexplained) << r.report();
   ASSERT_EQ(r.remaining.size(), 1u) << r.report();

@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "cli/pipeline.h"
+#include "pipeline/pipeline.h"
 #include "fitting/fit.h"
 #include "samples/generator/synth.h"
 
@@ -27,7 +27,7 @@ WorldFit fit_world(std::uint64_t seed, const std::vector<std::string>& effects) 
   synth::SynthOptions o = synth::independent_world_options(seed);
   synth::add_random_effects(o, seed);
   WorldFit w{synth::make_session(o), {}};
-  const diagnosis::SessionState st = pipeline::session_state(w.session.session);
+  const auto st = pipeline::build(w.session.session, {.upto = pipeline::Stage::Trials});
   fitting::FitOptions fo = st.baseline_fit_options;
   fo.free_effects = effects;
   fo.sensitivity = false;

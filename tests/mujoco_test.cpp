@@ -30,7 +30,8 @@ struct Trace {
 // a 24 kg box on a vertical slide joint, its face at the mat's top surface,
 // moving down at `velocity_m_s` at t = 0 (first contact). Returns the plate
 // force every step for `duration_s`.
-Trace drop_in_mujoco(const std::string& mat_xml, double mass_kg, double velocity_m_s, double duration_s) {
+Trace drop_in_mujoco(const std::string& mat_xml, double mass_kg, double velocity_m_s, double duration_s,
+                     int* bad_acceleration_warnings = nullptr) {
   const std::string impactor = fmt::format(
       "    <body name=\"impactor\" pos=\"0 0 0\">\n"
       "      <joint name=\"impactor_z\" type=\"slide\" axis=\"0 0 1\"/>\n"
@@ -74,6 +75,7 @@ Trace drop_in_mujoco(const std::string& mat_xml, double mass_kg, double velocity
     trace.t_s.push_back(d->time);
     trace.grf_n.push_back(d->qfrc_passive[dof] - mat_mass_kg * g);
   }
+  if (bad_acceleration_warnings) *bad_acceleration_warnings = d->warning[mjWARN_BADQACC].number;
   mj_deleteData(d);
   mj_deleteModel(m);
   return trace;
@@ -133,6 +135,44 @@ TEST(MuJoCoExport, Model4DropMatchesSimulateWithinOnePercentOfPeak) {
 
 TEST(MuJoCoExport, Model3DropMatchesSimulateWithinOnePercentOfPeak) {
   expect_mujoco_matches_simulate(fitting::ModelKind::Model3, 5.0);
+}
+
+// The file's stated stable step is the real limit of its springs: a stiff
+// surface spring (k1 at the fitter's upper bound, 3e7 N/m, on the 0.01 kg
+// surface body) with light damping integrates with bounded forces a little
+// below the stated step and blows up a little above it. The exported file
+// itself runs at a quarter of it.
+TEST(MuJoCoExport, TheStatedStableTimestepIsTheLimit) {
+  fitting::MatParams p = fitting::paper_table2(fitting::ModelKind::Model4);
+  p.k1_n_m = 3e7;
+  p.r1_n_s_m = p.r2_n_s_m = p.r3_n_s_m = 3.0;
+  const std::string xml = report::mjcf_xml(fitting::ModelKind::Model4, p, report::MatGeometry{});
+  const double limit_s = report::mjcf_max_stable_timestep_s(fitting::ModelKind::Model4, p);
+  // omega of the 0.01 kg body on 3e7 N/m above a much heavier layer: about
+  // sqrt(3e7 / 0.01) = 5.5e4 rad/s, so the limit is close to 2 / 5.5e4 s.
+  EXPECT_NEAR(limit_s, 2.0 / std::sqrt(3e7 / 0.01), 0.02 * limit_s);
+  EXPECT_NE(xml.find(fmt::format("data=\"{:.6g}\"", limit_s)), std::string::npos);
+  EXPECT_NE(xml.find(fmt::format("timestep=\"{:.6g}\"", 0.25 * limit_s)), std::string::npos);
+  auto with_step = [&](double step_s) {
+    std::string x = xml;
+    const auto at = x.find("timestep=\"");
+    const auto end = x.find('"', at + 10);
+    x.replace(at + 10, end - at - 10, fmt::format("{:.9g}", step_s));
+    return x;
+  };
+  auto worst = [](const Trace& t) {
+    double w = 0.0;
+    for (double f : t.grf_n) w = std::isfinite(f) ? std::max(w, std::abs(f)) : INFINITY;
+    return w;
+  };
+  int warnings_below = 0, warnings_above = 0;
+  const Trace below = drop_in_mujoco(with_step(0.9 * limit_s), 24.0, 4.0, 0.05, &warnings_below);
+  const Trace above = drop_in_mujoco(with_step(1.2 * limit_s), 24.0, 4.0, 0.05, &warnings_above);
+  // A 4 m/s drop on this mat peaks near 5 kN; unstable integration grows
+  // without bound (MuJoCo then warns of a bad acceleration and resets).
+  EXPECT_EQ(warnings_below, 0);
+  EXPECT_LT(worst(below), 2e4);
+  EXPECT_TRUE(warnings_above > 0 || worst(above) > 1e6) << "worst " << worst(above) << " N";
 }
 
 }  // namespace

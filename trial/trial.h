@@ -277,6 +277,11 @@ struct TrialResult {
   double velocity_from_impulse_m_s = std::numeric_limits<double>::quiet_NaN();  // impulse to max deformation / M
   double restitution = std::numeric_limits<double>::quiet_NaN();  // whole-contact impulse / (M v_in) - 1
   double reprojection_residual_px = std::numeric_limits<double>::quiet_NaN();  // median, base markers
+  // The plate correction closing the loop found (gain, drift), applied to
+  // series.fz_n and peak_force_n; the peak as the plate read it beside it.
+  // Empty / NaN when the loop corrected nothing.
+  std::string force_correction;
+  double peak_force_uncorrected_n = std::numeric_limits<double>::quiet_NaN();
   Series series;
 
   std::string report() const;

@@ -1,0 +1,125 @@
+#include "pipeline/outputs.h"
+
+#include <cmath>
+
+#include "pipeline/wiring.h"
+#include "report/opensim.h"
+#include "report/results.h"
+#include "report/session_report.h"
+
+namespace dropfit::pipeline {
+
+void add_calibration_outputs(report::OutputSet& out, const calibration::CalibrationResult& result,
+                             const VideoSpec& video) {
+  out.add("calibration.json", report::calibration_json(result));
+  const bool bottom_left = video.image_origin == ImageOrigin::BottomLeft && video.image_height_px;
+  out.add("dlt_coefficients.csv",
+          report::dlt_coefficients_csv(cameras_of(result), bottom_left ? *video.image_height_px : 0.0));
+}
+
+void add_reconstruction_outputs(report::OutputSet& out, const SessionState& state) {
+  for (const auto& t : state.trials) {
+    const std::string dir = "trials/" + t.result.id + "/";
+    out.add(dir + "xyzpts.csv", report::xyzpts_csv(t.trajectories));
+    out.add(dir + "residuals.csv", report::residuals_csv(t.trajectories));
+    out.add(dir + "xyzres.csv", report::xyzres_csv(t.trajectories, state.session.manifest.video.points));
+  }
+}
+
+void add_trial_outputs(report::OutputSet& out, const SessionState& state) {
+  add_reconstruction_outputs(out, state);
+  const Manifest& man = state.session.manifest;
+  std::vector<trial::TrialResult> results;
+  for (const auto& t : state.trials) {
+    const std::string dir = "trials/" + t.result.id + "/";
+    out.add(dir + "trial.json", report::trial_json(t.result));
+    out.add(dir + "series.csv", report::series_csv(t.result.series));
+    // OpenSim: markers with frame i at its force-clock time (the nominal
+    // video clock when synchronisation found no offset), and the plate's
+    // reaction.
+    const double offset_s = std::isfinite(t.result.video_offset_s) ? t.result.video_offset_s : 0.0;
+    const double rate_hz = man.video.frame_rate_hz;
+    Eigen::VectorXd frame_times_s(t.trajectories.n_frames());
+    for (Eigen::Index i = 0; i < frame_times_s.size(); ++i)
+      frame_times_s[i] = (static_cast<double>(i) - man.video.trigger_frame) / rate_hz - offset_s;
+    out.add(dir + "markers.trc", report::markers_trc(t.trajectories, man.video.points, frame_times_s, rate_hz));
+    if (t.force) out.add(dir + "grf.mot", report::grf_mot(*t.force));
+    results.push_back(t.result);
+  }
+  out.add("summary.csv", report::summary_csv(results));
+}
+
+void add_fit_outputs(report::OutputSet& out, const std::string& prefix, const fitting::FitResult& fit,
+                     const SessionState& state, const std::string& label) {
+  out.add(prefix + "fit.json", report::fit_json(fit, state.session.manifest.impactor.mass_kg, label));
+  for (const auto& trial : fit.trials) {
+    for (const auto& data : state.fit_data) {
+      if (data.id == trial.id) out.add(prefix + "series/" + data.id + ".csv", report::fit_series_csv(data, trial));
+    }
+  }
+}
+
+report::MatGeometry mat_geometry(const Manifest& manifest) {
+  report::MatGeometry geometry;
+  geometry.length_m = manifest.mat.length_m;
+  geometry.width_m = manifest.mat.width_m;
+  const auto& layers = manifest.mat.layers;
+  if (layers.size() >= 2) {
+    geometry.bottom_thickness_m = layers.back().thickness_m;
+    geometry.top_thickness_m = manifest.mat.thickness_m() - layers.back().thickness_m;
+  }
+  return geometry;
+}
+
+namespace {
+
+bool layered(fitting::ModelKind model) {
+  return model == fitting::ModelKind::Model3 || model == fitting::ModelKind::Model4;
+}
+
+}  // namespace
+
+void add_run_outputs(report::OutputSet& out, const SessionState& state) {
+  const Manifest& man = state.session.manifest;
+  add_calibration_outputs(out, state.calibration.after, man.video);
+  add_trial_outputs(out, state);
+  for (const auto& fit : state.fits) {
+    const std::string prefix = "fits/" + fitting::model_name(fit.model) + "/";
+    add_fit_outputs(out, prefix, fit, state);
+    if (layered(fit.model)) out.add(prefix + "mat.mjcf.xml", report::mjcf_xml(fit.model, fit.params, mat_geometry(man)));
+  }
+  // The final model is the result: the canonical fit.json and mat.mjcf.xml.
+  const fitting::FitResult* final_fit = state.final_fit();
+  if (state.loop) {
+    out.add("diagnosis.json", diagnosis::diagnosis_json(*state.loop));
+    if (state.loop->mat_fit) add_fit_outputs(out, "fits/closed_loop/", *state.loop->mat_fit, state, "closed_loop");
+  }
+  if (final_fit) {
+    add_fit_outputs(out, "", *final_fit, state, state.final_label());
+    if (layered(final_fit->model))
+      out.add("mat.mjcf.xml", report::mjcf_xml(final_fit->model, final_fit->params, mat_geometry(man)));
+  }
+
+  report::SessionReport rep;
+  rep.session_name = summarise(state).session;
+  rep.session_path = state.session.root;
+  rep.calibration = &state.calibration.after;
+  for (const auto& t : state.trials) rep.trials.push_back(t.result);
+  rep.fit_data = state.fit_data;
+  rep.fits = state.fits;
+  if (final_fit) {
+    rep.final_fit = *final_fit;
+    rep.final_label = state.final_label();
+  }
+  if (state.loop) {
+    rep.loop_run = true;
+    rep.loop_baseline_model = state.loop->baseline_model;
+    rep.loop_unexplained = state.loop->unexplained;
+    for (const auto& e : state.loop->effects)
+      rep.loop_effects.push_back({e.stage, e.name, e.evidence, e.error_before, e.error_after});
+  }
+  rep.notes = state.notes;
+  out.add("report.html", report::session_report_html(rep));
+}
+
+}  // namespace dropfit::pipeline

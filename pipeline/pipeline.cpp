@@ -1,0 +1,284 @@
+#include "pipeline/pipeline.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <optional>
+
+#include "capture/io.h"
+#include "core/error.h"
+#include "core/parallel.h"
+#include "pipeline/wiring.h"
+
+namespace dropfit::pipeline {
+namespace {
+
+void require(const SessionState& state, Stage before, const char* what) {
+  if (static_cast<int>(state.reached) < static_cast<int>(before))
+    throw Error(fmt::format("pipeline: {} needs the stage before it built first", what));
+}
+
+}  // namespace
+
+int SessionState::accepted() const {
+  int n = 0;
+  for (const auto& t : trials) n += t.result.accepted ? 1 : 0;
+  return n;
+}
+
+const fitting::FitResult* SessionState::final_fit() const {
+  if (loop && loop->mat_fit) return &*loop->mat_fit;
+  if (const auto* f = fit(fitting::ModelKind::Model4)) return f;
+  return fits.empty() ? nullptr : &fits.back();
+}
+
+std::string SessionState::final_label() const {
+  if (loop && loop->mat_fit) return "closed_loop";
+  const auto* f = final_fit();
+  return f ? fitting::model_name(f->model) : "";
+}
+
+fitting::FitOptions fit_options(const Manifest& manifest, fitting::ModelKind model) {
+  fitting::FitOptions options;
+  options.model = model;
+  const auto& layers = manifest.mat.layers;
+  if (layers.size() >= 2) {
+    options.m2_kg = layers.back().mass_kg;
+    options.m1_kg = manifest.mat.mass_kg() - options.m2_kg;
+  } else if (layers.size() == 1) {
+    options.m1_kg = options.m2_kg = layers.front().mass_kg / 2;
+  }
+  // Model 5's mat and face (the fitter differentiates it exactly).
+  if (model == fitting::ModelKind::Model5) options.model5_geometry = model5_geometry(manifest);
+  return options;
+}
+
+void calibrate(SessionState& state) {
+  const Manifest& man = state.session.manifest;
+  state.name = man.name;
+  state.impactor_mass_kg = man.impactor.mass_kg;
+  state.gravity_m_s2 = man.gravity_m_s2;
+  state.frame_rate_hz = man.video.frame_rate_hz;
+  state.trigger_frame = man.video.trigger_frame;
+  state.mat_top_z_m = man.forceplate.mat_top_z_m;
+  const trial::TrialOptions to = trial_options(man, "");
+  state.base_markers = to.base_markers;
+  state.surface_markers = to.surface_markers;
+  state.base_marker_height_m = to.base_marker_height_m;
+  state.quiet_guard_s = forceplate::ProcessOptions{}.quiet_guard_s;
+  state.baseline_fit_options = fit_options(man, fitting::ModelKind::Model4);
+  state.calibration = choose_calibration(state.session);
+  state.reached = Stage::Calibration;
+}
+
+void reconstruct(SessionState& state) {
+  require(state, Stage::Calibration, "reconstruction");
+  const auto cameras = cameras_of(state.calibration.after);
+  state.trials.clear();
+  for (const auto& trial : state.session.trials) {
+    diagnosis::TrialState& t = state.trials.emplace_back();
+    t.result.id = trial.spec.id;
+    t.trajectories = reconstruction::reconstruct(cameras, trial.tracks.uv_px, trial.tracks.n_points());
+  }
+  state.reached = Stage::Reconstruction;
+}
+
+void analyse_trials(SessionState& state, double max_tilt_deg, const std::function<void(const std::string&)>& say) {
+  require(state, Stage::Reconstruction, "trial analysis");
+  const Manifest& man = state.session.manifest;
+  // Trials measured through a calibration that failed its own checks, or
+  // whose markers reproject far beyond it, are rejected (trial.h's gates);
+  // every velocity interval carries the calibration's vertical scale.
+  double z_min = std::numeric_limits<double>::infinity(), z_max = -z_min;
+  for (const auto& m : state.session.frame) z_min = std::min(z_min, m.lab_m.z()), z_max = std::max(z_max, m.lab_m.z());
+  const auto quality = trial::calibration_quality(state.calibration.after, z_max - z_min);
+  state.fit_data.clear();
+  for (std::size_t i = 0; i < state.session.trials.size(); ++i) {
+    const TrialRecording& recording = state.session.trials[i];
+    diagnosis::TrialState& t = state.trials[i];
+    if (say) say(fmt::format("trial {} ({}/{})", recording.spec.id, i + 1, state.session.trials.size()));
+    trial::TrialOptions options = trial_options(man, recording.spec.id);
+    if (max_tilt_deg > 0.0) options.max_tilt_deg = max_tilt_deg;
+    TrialOutcome outcome = analyse_trial(man, recording, t.trajectories, options);
+    trial::apply_calibration_gates(outcome.result, t.trajectories, options, quality);
+    trial::add_calibration_uncertainty(outcome.result, quality);
+    t.result = std::move(outcome.result);
+    t.force = std::move(outcome.force);
+    state.fit_data.push_back(fitting_trial(man, t.result));
+  }
+  state.reached = Stage::Trials;
+}
+
+void fit_models(SessionState& state, const std::vector<fitting::ModelKind>& models, int threads,
+                const std::function<void(const std::string&)>& say) {
+  require(state, Stage::Trials, "fitting");
+  state.models_asked = models;
+  state.fits.clear();
+  state.reached = Stage::Fits;
+  if (state.accepted() == 0) {
+    state.notes.push_back("no accepted trial: nothing to fit");
+    return;
+  }
+  const Manifest& manifest = state.session.manifest;
+  std::vector<std::optional<fitting::FitResult>> fits(models.size());
+  std::vector<std::string> errors(models.size());
+  auto fit_one = [&](std::size_t k, const fitting::FitOptions& options) {
+    if (say) say("fitting " + fitting::model_name(models[k]));
+    try {
+      fits[k] = fitting::fit(state.fit_data, options);
+    } catch (const std::exception& e) {
+      errors[k] = e.what();
+    }
+  };
+  // Model 4 first (the loop's baseline), then Model 5 warm-started from its
+  // optimum (their parameters mean the same thing) with one start and few
+  // iterations, on the same worker (its exact derivatives split over
+  // FitOptions::threads); Models 1-3 on the others meanwhile.
+  std::size_t k4 = models.size();
+  for (std::size_t k = 0; k < models.size(); ++k)
+    if (models[k] == fitting::ModelKind::Model4) k4 = k;
+  std::vector<std::size_t> queue, fives;
+  if (k4 < models.size()) queue.push_back(k4);
+  for (std::size_t k = 0; k < models.size(); ++k) {
+    if (models[k] == fitting::ModelKind::Model5) fives.push_back(k);
+    else if (k != k4) queue.push_back(k);
+  }
+  auto fit_five = [&](std::size_t k) {
+    auto options = fit_options(manifest, models[k]);
+    if (k4 < models.size() && fits[k4]) {
+      options.initial = fits[k4]->params;
+      options.starts = 1;
+      options.max_iterations = 30;
+      options.first_stage_iterations = 30;  // one run of 30 iterations (no second stage)
+    }
+    fit_one(k, options);
+  };
+  // Model 5 follows Model 4 on its worker; without Model 4 it runs last.
+  if (k4 >= models.size())
+    for (std::size_t k : fives) queue.push_back(k);
+  parallel_for(queue.size(), std::max(1, threads), [&](std::size_t i) {
+    const std::size_t k = queue[i];
+    if (models[k] == fitting::ModelKind::Model5) {
+      fit_five(k);
+      return;
+    }
+    fit_one(k, fit_options(manifest, models[k]));
+    if (k == k4)
+      for (std::size_t f : fives) fit_five(f);
+  });
+  for (std::size_t k = 0; k < models.size(); ++k) {
+    const auto name = fitting::model_name(models[k]);
+    if (!fits[k]) {
+      state.notes.push_back(fmt::format("{} fit failed: {}", name, errors[k]));
+      ++state.failed_fits;
+      continue;
+    }
+    for (const auto& w : fits[k]->warnings) state.notes.push_back(name + ": " + w);
+    state.fits.push_back(std::move(*fits[k]));
+  }
+}
+
+void close_loop(SessionState& state) {
+  require(state, Stage::Fits, "closing the loop");
+  state.reached = Stage::Loop;
+  if (state.accepted() > 0) {
+    try {
+      state.loop = diagnosis::diagnose(state);
+      for (const auto& stage : state.loop->not_assessed)
+        state.notes.push_back(fmt::format("closing the loop: {} not assessed: upstream unresolved", stage));
+    } catch (const std::exception& e) {
+      state.notes.push_back(fmt::format("closing the loop failed: {}", e.what()));
+    }
+  }
+  // What the loop found, the results use: a plate gain or drift it kept
+  // corrects every trial's force and every fit (the plate's own reading
+  // kept beside it), so no result stands on data the loop showed wrong.
+  if (state.loop) apply_plate_correction(state, state.loop->plate_correction);
+  // Each trial's clock offset from the contact instant the final mat model
+  // placed on the force clock, replacing the plate-onset estimate, which
+  // reads late on a layered mat.
+  if (const fitting::FitResult* final_fit = state.final_fit())
+    for (auto& t : state.trials) apply_fitted_offset(t.result, *final_fit);
+}
+
+void apply_plate_correction(SessionState& state, const diagnosis::PlateCorrection& correction) {
+  if (!correction.drift && correction.gain == 1.0) return;
+  const std::string what =
+      correction.drift
+          ? fmt::format("plate gain {:.4g} and baseline drift {:.3g} N/s removed by closing the loop", correction.gain,
+                        correction.drift_n_s)
+          : fmt::format("plate gain {:.4g} removed by closing the loop", correction.gain);
+  for (std::size_t i = 0; i < state.trials.size(); ++i) {
+    trial::TrialResult& r = state.trials[i].result;
+    if (!std::isfinite(r.contact_time_s) || r.series.t_s.size() == 0) continue;
+    r.series.fz_n = correction.apply(r.series.t_s, r.series.fz_n, r.contact_time_s);
+    r.peak_force_uncorrected_n = r.peak_force_n;
+    if (std::isfinite(r.time_to_peak_s)) {
+      const Eigen::VectorXd at = Eigen::VectorXd::Constant(1, r.contact_time_s + r.time_to_peak_s);
+      r.peak_force_n = correction.apply(at, Eigen::VectorXd::Constant(1, r.peak_force_n), r.contact_time_s)[0];
+    } else {
+      r.peak_force_n /= correction.gain;
+    }
+    r.force_noise_n /= correction.gain;
+    r.force_correction = what;
+    state.fit_data[i] = fitting_trial(state.session.manifest, r);
+  }
+  state.notes.push_back("every trial's force and every fit: " + what);
+  // The fits made before the loop stood on the plate's reading: refitted.
+  const std::vector<fitting::ModelKind> models = state.models_asked;
+  if (!models.empty() && state.accepted() > 0) {
+    const int failed_before = state.failed_fits;
+    state.failed_fits = 0;
+    fit_models(state, models, 2);
+    state.failed_fits = std::max(failed_before, state.failed_fits);
+    state.reached = Stage::Loop;
+  }
+}
+
+SessionState build(Session session, const BuildOptions& options) {
+  SessionState state;
+  state.session = std::move(session);
+  const auto say = options.say;
+  auto upto = [&](Stage s) { return static_cast<int>(options.upto) >= static_cast<int>(s); };
+  if (upto(Stage::Calibration)) {
+    if (say) say("calibrating");
+    calibrate(state);
+  }
+  if (upto(Stage::Reconstruction)) reconstruct(state);
+  if (upto(Stage::Trials)) analyse_trials(state, options.max_tilt_deg, say);
+  if (upto(Stage::Fits)) fit_models(state, options.models, options.threads, say);
+  if (upto(Stage::Loop)) {
+    if (say) say("closing the loop");
+    close_loop(state);
+  }
+  for (const auto& t : state.trials)
+    if (!t.result.accepted && static_cast<int>(state.reached) >= static_cast<int>(Stage::Trials))
+      state.notes.push_back(fmt::format("trial {} rejected: {}", t.result.id, t.result.reject_reason));
+  return state;
+}
+
+SessionState build(const std::string& session_dir, const BuildOptions& options) {
+  if (options.say) options.say("reading " + session_dir);
+  return build(capture::read_session(session_dir), options);
+}
+
+RunSummary summarise(const SessionState& state) {
+  RunSummary s;
+  s.session = state.session.manifest.name.empty() ? state.session.root : state.session.manifest.name;
+  s.trials = static_cast<int>(state.trials.size());
+  s.accepted = state.accepted();
+  s.failed_fits = state.failed_fits;
+  s.final_model = state.final_fit() != nullptr;
+  s.notes = state.notes;
+  return s;
+}
+
+fitting::Simulation simulate_fitted(fitting::ModelKind model, const fitting::MatParams& params,
+                                    const fitting::Impact& impact, const fitting::Model5Geometry& geometry) {
+  if (model == fitting::ModelKind::Model5) return fitting::simulate_model5(params, geometry, impact);
+  return fitting::simulate(model, params, impact);
+}
+
+}  // namespace dropfit::pipeline

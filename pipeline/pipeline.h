@@ -1,0 +1,111 @@
+#pragma once
+// One session, one state, built stage by stage.
+//
+//   read -> calibration -> reconstruction -> trials -> fits -> loop
+//
+// Every command is a view of this state: `reconstruct` stops after the
+// reconstruction, `process`, `fit`, `diagnose` and `run` build it through the
+// loop, so a trial gets the same verdict, impact-velocity interval and clock
+// offset from every command. The state is plain data; nothing here writes a
+// file (pipeline/outputs.h turns a state into an OutputSet, which the
+// commands commit).
+//
+// What each stage adds:
+//   calibration     the calibration stage's choice of camera model (outliers
+//                   and lens distortion decided by cross-validation), or the
+//                   manifest's DLT coefficients checked on the frame
+//   reconstruction  every trial's 3-D trajectories with that camera model
+//   trials          the force plate, synchronisation, impact velocity with its
+//                   95 % interval (calibration scale included), deformation,
+//                   tilt, the calibration gates and acceptance
+//   fits            the mat models on the accepted trials
+//   loop            closing the loop (diagnosis/): effects named and their
+//                   corrections; the final model (the closed loop's when it
+//                   kept mat effects, else Model 4) places each trial's
+//                   contact on the force clock, which gives the trial's clock
+//                   offset
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "capture/session.h"
+#include "core/progress.h"
+#include "diagnosis/diagnosis.h"
+#include "fitting/fit.h"
+#include "fitting/models.h"
+
+namespace dropfit::pipeline {
+
+enum class Stage { Read = 0, Calibration, Reconstruction, Trials, Fits, Loop };
+
+// The whole session: what capture read, and what every stage made of it
+// (diagnosis::SessionData is the part the loop reads).
+struct SessionState : diagnosis::SessionData {
+  Session session;              // the inputs as read (manifest, calibration files, tracks, force records)
+  Stage reached = Stage::Read;  // the last stage built
+  std::vector<fitting::ModelKind> models_asked;  // the fits stage's models
+  std::optional<diagnosis::DiagnosisResult> loop;  // when the loop ran
+  std::vector<std::string> notes;  // failed fits, fit warnings, stages that could not run
+  int failed_fits = 0;
+
+  int accepted() const;
+  // The final model: the closed loop's fit when the loop kept mat effects,
+  // else the Model 4 fit, else the last model fitted; null before the fits.
+  const fitting::FitResult* final_fit() const;
+  // "closed_loop" when the final model is the loop's, else its model name.
+  std::string final_label() const;
+};
+
+struct BuildOptions {
+  Stage upto = Stage::Loop;
+  std::vector<fitting::ModelKind> models = {fitting::ModelKind::Model1, fitting::ModelKind::Model2,
+                                            fitting::ModelKind::Model3, fitting::ModelKind::Model4,
+                                            fitting::ModelKind::Model5};
+  int threads = 1;            // fits in parallel
+  double max_tilt_deg = 0.0;  // > 0: reject trials tilting more (else the trial stage's default)
+  std::function<void(const std::string&)> say;  // progress (may be empty)
+};
+
+// Reads the session folder and builds it up to `options.upto`. Throws
+// dropfit::Error when the session as a whole cannot be processed
+// (unreadable input, no calibration); a bad trial is rejected with its
+// reason and the rest goes on; a failed fit is a note.
+SessionState build(const std::string& session_dir, const BuildOptions& options = {});
+// The same from a session already read.
+SessionState build(Session session, const BuildOptions& options = {});
+
+// The stages one at a time (each needs the one before; build() calls them).
+void calibrate(SessionState& state);
+void reconstruct(SessionState& state);
+void analyse_trials(SessionState& state, double max_tilt_deg = 0.0,
+                    const std::function<void(const std::string&)>& say = {});
+void fit_models(SessionState& state, const std::vector<fitting::ModelKind>& models, int threads = 1,
+                const std::function<void(const std::string&)>& say = {});
+void close_loop(SessionState& state);
+// Corrects every trial's force (series, peak, noise; the plate's own peak
+// kept beside it) and the fits' data by a plate gain or drift, and refits the
+// models asked on it. Nothing happens for the identity correction.
+void apply_plate_correction(SessionState& state, const diagnosis::PlateCorrection& correction);
+
+// The fitter's options for `model` with the manifest's layer masses (top =
+// every layer above the last, bottom = the last) and Model 5's geometry.
+fitting::FitOptions fit_options(const Manifest& manifest, fitting::ModelKind model);
+
+// The main job on one session (build through the loop), for `run`, the
+// Python module and the benchmarks.
+struct RunSummary {
+  std::string session;
+  int trials = 0, accepted = 0;
+  int failed_fits = 0;
+  bool final_model = false;  // a canonical model was fitted
+  std::vector<std::string> notes;
+};
+RunSummary summarise(const SessionState& state);
+
+// Simulates an impact with a fitted parameter file's model (Models 1-5;
+// Model 5 with its default geometry).
+fitting::Simulation simulate_fitted(fitting::ModelKind model, const fitting::MatParams& params,
+                                    const fitting::Impact& impact, const fitting::Model5Geometry& geometry = {});
+
+}  // namespace dropfit::pipeline
