@@ -79,8 +79,7 @@ TEST(CliTable, LeaveOneOutErrorsMatchAnIndependentFitAndAppearInTheReport) {
     // simulated peak and deepest travel of a sampled simulation, a surface
     // with kinks where the peak moves from one sample to the next, so
     // Levenberg-Marquardt stalls within a few tenths of a per cent of the
-    // valley's floor (measured: the command's six starts end 0.03-0.15 %
-    // above twenty starts' best on the five left-out fits of Table 1).
+    // valley's floor (docs/models.md, table mode).
     EXPECT_LE(command_fit.cost, fit.cost * 1.005) << "impact " << table[i].id;
     worst_diff = std::max(worst_diff, std::abs(got - fit.trials[i].peak_force_pct_diff));
     // The report shows each left-out error as the command prints it.
