@@ -580,8 +580,7 @@ void impulse_checks(const forceplate::ForceTrial& force, const TrialOptions& o, 
 // The mat top as the cameras see it: the surface markers' mean height over
 // the frames where every one is seen, before the face first comes within
 // 20 mm of the surveyed top (after the rebound the mat may still be
-// recovering); NaN when fewer than min_rest_frames such frames or
-// the mean is more than max_surface_reference_m from mat_top_z_m (see the
+// recovering); NaN when fewer than min_rest_frames such frames (see the
 // header: contact height).
 double surface_rest_height_m(const Eigen::VectorXd& h, const Eigen::VectorXd& surf, const TrialOptions& o) {
   constexpr double kClear_m = 0.020;
@@ -594,9 +593,7 @@ double surface_rest_height_m(const Eigen::VectorXd& h, const Eigen::VectorXd& su
       ++n;
     }
   }
-  if (n < o.min_rest_frames) return kNaN;
-  const double rest = sum / n;
-  return std::abs(rest - o.mat_top_z_m) <= o.max_surface_reference_m ? rest : kNaN;
+  return n < o.min_rest_frames ? kNaN : sum / n;
 }
 
 TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string& force_error,
@@ -614,7 +611,15 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
   const Eigen::VectorXd surf = mean_height(markers, given.surface_markers, 0.0);
   // Everything below measures from the contact height.
   TrialOptions o = given;
-  if (const double rest = surface_rest_height_m(h, surf, given); std::isfinite(rest)) o.mat_top_z_m = rest;
+  const double rest = surface_rest_height_m(h, surf, given);
+  if (std::abs(rest - given.mat_top_z_m) <= given.max_surface_reference_m) o.mat_top_z_m = rest;
+  if (std::abs(rest - given.mat_top_z_m) > given.max_surface_disagreement_m) {
+    reasons.push_back(fmt::format(
+        "the cameras see the mat top (the surface markers at rest) at z = {:.4f} m, {:+.1f} mm from the declared "
+        "[forceplate] mat_top_z_m = {:.4f} m (tolerance {:.0f} mm): either mat_top_z_m is wrong or the surface "
+        "markers are not on the mat top; the contact instant, impact velocity and deformation depend on which",
+        rest, 1e3 * (rest - given.mat_top_z_m), given.mat_top_z_m, 1e3 * given.max_surface_disagreement_m));
+  }
   res.contact_height_m = o.mat_top_z_m;
   const double top = o.mat_top_z_m;
 
@@ -726,6 +731,7 @@ void TrialOptions::validate() const {
   check::finite(w, "base_marker_height_m", base_marker_height_m);
   check::finite(w, "mat_top_z_m", mat_top_z_m);
   check::non_negative(w, "max_surface_reference_m", max_surface_reference_m);
+  check::non_negative(w, "max_surface_disagreement_m", max_surface_disagreement_m);
   check::at_least(w, "min_rest_frames", min_rest_frames, 1);
   check::in_range(w, "max_tilt_deg", max_tilt_deg, 0.0, 90.0);
   check::positive(w, "freefall_window_s", freefall_window_s);
