@@ -144,6 +144,14 @@ void analyse_trials(SessionState& state, double max_tilt_deg, const std::functio
 void fit_models(SessionState& state, const std::vector<fitting::ModelKind>& models, int threads,
                 const std::function<void(const std::string&)>& say) {
   require(state, Stage::Trials, "fitting");
+  // A refit (e.g. on plate-corrected force) replaces the earlier fits: their
+  // warnings and failures go with them.
+  for (const fitting::ModelKind m : state.models_asked) {
+    const std::string name = fitting::model_name(m);
+    std::erase_if(state.notes, [&](const std::string& note) {
+      return note.rfind(name + ": ", 0) == 0 || note.rfind(name + " fit failed: ", 0) == 0;
+    });
+  }
   state.models_asked = models;
   state.fits.clear();
   state.reached = Stage::Fits;
