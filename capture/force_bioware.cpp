@@ -221,9 +221,11 @@ std::vector<std::array<double, 8>> unit_scales(const std::string& path, const st
   return scale;
 }
 
-BioWareExport parse_bioware(const std::string& path, const std::vector<Line>& lines, std::size_t header,
+BioWareExport parse_bioware(const std::string& path, const ForceTextHead& text, LineStream& stream,
                             BioWareLines& where) {
   BioWareExport ex;
+  const std::vector<Line>& lines = text.lines;
+  const std::size_t header = text.header;
   const SamplesLine samples = read_bioware_header(path, lines, header, ex, where);
 
   // Column header: blocks of Fx..Ay, one per plate.
@@ -242,11 +244,8 @@ BioWareExport parse_bioware(const std::string& path, const std::vector<Line>& li
   std::vector<double> t, res;
   std::vector<int> line_of, col_of;
   std::vector<std::vector<double>> values(blocks.size());
-  std::size_t end = lines.size();
-  while (end > header + 2 && blank_line(lines[end - 1].text)) --end;
-  for (std::size_t i = header + 2; i < end; ++i) {
-    const Line& l = lines[i];
-    if (blank_line(l.text)) throw InputError(path, l.number, 0, "", "blank line inside the data");
+  DataRows data(path, stream);
+  for (Line l; data.next(l);) {
     std::vector<Field> f = split_fields(l.text, '\t');
     // Trailing empty fields beyond the header's columns are a trailing tab;
     // empty fields within them are values (an unloaded plate's Ax Ay).
@@ -281,17 +280,10 @@ BioWareExport parse_bioware(const std::string& path, const std::vector<Line>& li
   return ex;
 }
 
-std::size_t bioware_header(const std::string& path, const std::vector<Line>& lines) {
-  for (std::size_t i = 0; i < lines.size(); ++i) {
-    const std::vector<Field> f = split_fields(lines[i].text, '\t');
-    if (iequals_prefix(f[0].text, "abs time")) return i;
-  }
-  throw InputError(path, 0, 0, "", "no column header: expected a line beginning 'abs time' (BioWare export)");
-}
 
 }  // namespace
 
-std::vector<Line> read_text_lines(const std::string& path) {
+LineStream::LineStream(const std::string& path) : path_(path) {
   namespace fs = std::filesystem;
   require_file(path);
   std::error_code ec;
@@ -301,44 +293,95 @@ std::vector<Line> read_text_lines(const std::string& path) {
     throw InputError(path, 0, 0, "",
                      fmt::format("file of {} bytes, larger than the {} bytes a force export here may have", size,
                                  kMaxForceTextBytes));
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw InputError(path, 0, 0, "", "cannot open");
-  std::string bytes(static_cast<std::size_t>(size), '\0');
-  in.read(bytes.data(), static_cast<std::streamsize>(size));
-  if (static_cast<std::uintmax_t>(in.gcount()) != size) throw InputError(path, 0, 0, "", "cannot read the whole file");
-
-  std::string text;
-  if (bytes.size() >= 2 && static_cast<unsigned char>(bytes[0]) == 0xFF && static_cast<unsigned char>(bytes[1]) == 0xFE)
-    text = utf16_to_utf8(path, std::string_view(bytes).substr(2), false);
-  else if (bytes.size() >= 2 && static_cast<unsigned char>(bytes[0]) == 0xFE &&
-           static_cast<unsigned char>(bytes[1]) == 0xFF)
-    text = utf16_to_utf8(path, std::string_view(bytes).substr(2), true);
-  else if (bytes.size() >= 3 && bytes.compare(0, 3, "\xEF\xBB\xBF") == 0)
-    text = bytes.substr(3);
-  else
-    text = std::move(bytes);
-
-  std::vector<Line> lines;
-  std::size_t at = 0;
-  int number = 1;
-  while (at < text.size()) {
-    std::size_t end = text.find('\n', at);
-    if (end == std::string::npos) end = text.size();
-    std::string_view l(text.data() + at, end - at);
-    if (!l.empty() && l.back() == '\r') l.remove_suffix(1);
-    if (l.find('\0') != std::string_view::npos)
-      throw InputError(path, number, static_cast<int>(l.find('\0')) + 1, "",
-                       "NUL byte in a text file (UTF-16 without a byte-order mark?)");
-    lines.push_back({number++, std::string(l)});
-    at = end + 1;
+  in_.open(path, std::ios::binary);
+  if (!in_) throw InputError(path, 0, 0, "", "cannot open");
+  char bom[3] = {};
+  in_.read(bom, 3);
+  const std::streamsize got = in_.gcount();
+  const auto b0 = static_cast<unsigned char>(bom[0]), b1 = static_cast<unsigned char>(bom[1]);
+  if (got >= 2 && ((b0 == 0xFF && b1 == 0xFE) || (b0 == 0xFE && b1 == 0xFF))) {
+    // UTF-16: converted whole (the conversion checks every sequence).
+    in_.clear();
+    in_.seekg(2);
+    const std::string bytes((std::istreambuf_iterator<char>(in_)), std::istreambuf_iterator<char>());
+    if (static_cast<std::uintmax_t>(bytes.size()) + 2 != size)
+      throw InputError(path, 0, 0, "", "cannot read the whole file");
+    decoded_ = utf16_to_utf8(path, bytes, b0 == 0xFE);
+    utf16_ = true;
+    in_.close();
+    return;
   }
+  // UTF-8: a byte-order mark is skipped, anything else read from the start.
+  const bool utf8_bom = got == 3 && std::string_view(bom, 3) == "\xEF\xBB\xBF";
+  in_.clear();
+  in_.seekg(utf8_bom ? 3 : 0);
+}
+
+bool LineStream::next(Line& line) {
+  if (utf16_) {
+    if (at_ >= decoded_.size()) return false;
+    std::size_t end = decoded_.find('\n', at_);
+    if (end == std::string::npos) end = decoded_.size();
+    line.text.assign(decoded_, at_, end - at_);
+    at_ = end + 1;
+  } else if (!std::getline(in_, line.text)) {
+    if (in_.bad()) throw InputError(path_, number_ + 1, 0, "", "read error");
+    return false;
+  }
+  if (!line.text.empty() && line.text.back() == '\r') line.text.pop_back();
+  line.number = ++number_;
+  if (const std::size_t nul = line.text.find('\0'); nul != std::string::npos)
+    throw InputError(path_, number_, static_cast<int>(nul) + 1, "",
+                     "NUL byte in a text file (UTF-16 without a byte-order mark?)");
+  return true;
+}
+
+std::vector<Line> read_text_lines(const std::string& path) {
+  LineStream stream(path);
+  std::vector<Line> lines;
+  for (Line l; stream.next(l);) lines.push_back(std::move(l));
   return lines;
 }
 
-ForceRecord read_bioware(const std::string& path, const std::vector<Line>& lines, std::size_t header,
+bool DataRows::next(Line& line) {
+  while (rows_.next(line)) {
+    if (blank_line(line.text)) {
+      if (blank_line_ == 0) blank_line_ = line.number;
+      continue;
+    }
+    if (blank_line_ != 0) throw InputError(path_, blank_line_, 0, "", "blank line inside the data");
+    return true;
+  }
+  return false;
+}
+
+ForceTextHead read_force_text_head(const std::string& path, LineStream& stream) {
+  // A column header further down than this is no force export's.
+  constexpr std::size_t kMaxHeadLines = 1000;
+  ForceTextHead head;
+  for (Line l; head.lines.size() < kMaxHeadLines && stream.next(l);) {
+    const std::vector<Field> f = split_fields(l.text, '\t');
+    const std::string first = f.empty() ? std::string() : f[0].text;
+    head.lines.push_back(std::move(l));
+    const bool eight = iequals(first, "Time(s)") || iequals(first, "Time (s)");
+    head.bioware = iequals_prefix(first, "abs time");
+    if (eight || head.bioware) {
+      head.header = head.lines.size() - 1;
+      if (head.bioware && stream.next(l)) head.lines.push_back(std::move(l));  // the units line
+      return head;
+    }
+  }
+  throw InputError(path, 0, 0, "",
+                   fmt::format("no column header{}: expected a line beginning 'Time(s)' (Kistler eight-channel) or "
+                               "'abs time' (BioWare)",
+                               head.lines.size() >= kMaxHeadLines ? fmt::format(" in the first {} lines", kMaxHeadLines)
+                                                                  : std::string()));
+}
+
+ForceRecord read_bioware(const std::string& path, const ForceTextHead& head, LineStream& rows,
                          const ForcePlateSpec& plate) {
   BioWareLines where;
-  BioWareExport ex = parse_bioware(path, lines, header, where);
+  BioWareExport ex = parse_bioware(path, head, rows, where);
   if (!ex.present[2])
     throw InputError(path, where.header_line, 0, "Fz",
                      "no Fz column: this export cannot give the ground reaction force (export Fz from BioWare)");
@@ -362,9 +405,13 @@ ForceRecord read_bioware(const std::string& path, const std::vector<Line>& lines
 }  // namespace detail
 
 BioWareExport read_bioware_export(const std::string& path) {
-  const std::vector<detail::Line> lines = detail::read_text_lines(path);
+  detail::LineStream stream(path);
+  const detail::ForceTextHead head = detail::read_force_text_head(path, stream);
+  if (!head.bioware)
+    throw InputError(path, head.lines[head.header].number, 0, "",
+                     "a Kistler eight-channel export ('Time(s)' column header), not a BioWare one ('abs time')");
   detail::BioWareLines where;
-  return detail::parse_bioware(path, lines, detail::bioware_header(path, lines), where);
+  return detail::parse_bioware(path, head, stream, where);
 }
 
 }  // namespace dropfit::capture

@@ -14,8 +14,10 @@
 
 namespace dropfit::capture::detail {
 
-ForceRecord read_eight_channel(const std::string& path, const std::vector<Line>& lines, std::size_t header,
+ForceRecord read_eight_channel(const std::string& path, const ForceTextHead& text, LineStream& stream,
                                const ForcePlateSpec& plate) {
+  const std::vector<Line>& lines = text.lines;
+  const std::size_t header = text.header;
   ForceRecord rec;
   rec.layout = ForceLayout::EightChannel;
   struct Entry {
@@ -71,11 +73,16 @@ ForceRecord read_eight_channel(const std::string& path, const std::vector<Line>&
   std::vector<double> t, res;
   std::vector<int> line_of, col_of;
   std::vector<double> values;
-  std::size_t end = lines.size();
-  while (end > header + 1 && blank_line(lines[end - 1].text)) --end;
-  for (std::size_t i = header + 1; i < end; ++i) {
-    const Line& l = lines[i];
-    if (blank_line(l.text)) throw InputError(path, l.number, 0, "", "blank line inside the data");
+  // Room for the rows the header announces (up to 2^18; a header's claim
+  // alone never allocates more).
+  const auto reserve = static_cast<std::size_t>(std::min<long long>(samples, 1 << 18));
+  t.reserve(reserve);
+  res.reserve(reserve);
+  line_of.reserve(reserve);
+  col_of.reserve(reserve);
+  values.reserve(8 * reserve);
+  DataRows data(path, stream);
+  for (Line l; data.next(l);) {
     std::vector<Field> f = split_fields(l.text, '\t');
     drop_trailing_empty(f);
     if (f.size() != cols.size()) row_length_error(path, l, f, cols, head.number);

@@ -115,16 +115,10 @@ int trigger_sample_from_fraction(double pretrigger_fraction, int n_samples) {
 ForceRecord read_force(const std::string& path, const ForcePlateSpec& plate) {
   const std::string ext = fs::path(path).extension().string();
   if (iequals(ext, ".c3d") || force_file_kind(path) == ForceFileKind::C3d) return read_force_c3d(path, plate);
-  const std::vector<Line> lines = read_text_lines(path);
-  for (std::size_t i = 0; i < lines.size(); ++i) {
-    const std::vector<Field> f = split_fields(lines[i].text, '\t');
-    const std::string& first = f[0].text;
-    if (iequals(first, "Time(s)") || iequals(first, "Time (s)")) return read_eight_channel(path, lines, i, plate);
-    if (iequals_prefix(first, "abs time")) return read_bioware(path, lines, i, plate);
-  }
-  throw InputError(path, 0, 0, "",
-                   "no column header: expected a line beginning 'Time(s)' (Kistler eight-channel) or 'abs time' "
-                   "(BioWare)");
+  // The header is read first; the data rows are parsed as they are read.
+  LineStream stream(path);
+  const ForceTextHead head = read_force_text_head(path, stream);
+  return head.bioware ? read_bioware(path, head, stream, plate) : read_eight_channel(path, head, stream, plate);
 }
 
 void write_force(const std::string& path, const ForceRecord& record, const std::string& device) {
