@@ -124,7 +124,7 @@ TEST(FitSeriesCsv, CarriesTheLayersTravelBesideTheMeasuredSurface) {
   std::getline(in, header);
   EXPECT_EQ(header,
             "t_s,measured_fz_n,simulated_fz_n,measured_impactor_m,simulated_impactor_m,measured_surface_m,"
-            "simulated_surface_m,simulated_layer1_m,simulated_layer2_m");
+            "simulated_surface_m,simulated_layer1_m,simulated_layer2_m,simulated_fz_low_n,simulated_fz_high_n");
   int rows = 0;
   std::string last;
   while (std::getline(in, row)) {
