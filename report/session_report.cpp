@@ -292,6 +292,13 @@ std::string session_report_html(const SessionReport& r) {
   summary_section(doc, r);
   final_model_section(doc, r);
   if (r.calibration) calibration_section(doc, *r.calibration);
+  // Where the impact velocity's calibration term comes from when the
+  // calibration could not be checked (the trials' own words).
+  for (const auto& t : r.trials)
+    if (t.calibration_uncertainty.rfind("declared", 0) == 0) {
+      doc.note(fmt::format("Impact velocity intervals: {}.", t.calibration_uncertainty));
+      break;
+    }
   trials_section(doc, r);
   parameters_section(doc, r);
   loop_section(doc, r);

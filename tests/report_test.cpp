@@ -15,6 +15,7 @@
 #include "report/output.h"
 #include "report/plot.h"
 #include "report/results.h"
+#include "report/session_report.h"
 
 namespace fs = std::filesystem;
 using namespace dropfit::report;
@@ -145,4 +146,18 @@ TEST(FitSeriesCsv, CarriesTheLayersTravelBesideTheMeasuredSurface) {
   EXPECT_NEAR(cols[8], 0.0002, 1e-12);
   EXPECT_NEAR(cols[9], 395.0, 1e-9);
   EXPECT_NEAR(cols[10], 425.0, 1e-9);
+}
+
+// A session whose calibration could not be checked: the report says where the
+// impact velocity's calibration term comes from (the trials' own words), and
+// says nothing of the kind when the check markers measured it.
+TEST(SessionReportHtml, SaysWhenTheCalibrationTermIsDeclared) {
+  SessionReport r;
+  r.session_name = "s";
+  r.trials.resize(1);
+  r.trials[0].calibration_uncertainty = "declared: the calibration was not checked";
+  EXPECT_NE(session_report_html(r).find("Impact velocity intervals: declared: the calibration was not checked."),
+            std::string::npos);
+  r.trials[0].calibration_uncertainty = "check markers";
+  EXPECT_EQ(session_report_html(r).find("Impact velocity intervals:"), std::string::npos);
 }
