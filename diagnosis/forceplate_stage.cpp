@@ -64,8 +64,8 @@ double drift_column(const PlateTrial& t, Eigen::Index i, bool from_contact) {
 }
 
 // Least squares of the still residual on per-trial intercepts and one
-// common drift column, using the rows in `use`. Returns the drift slope and
-// per-trial intercepts.
+// common drift column (fit_drift: every row, or only the rows not `late`).
+// Returns the drift slope and per-trial intercepts.
 struct DriftFit {
   double slope = 0.0;
   Eigen::VectorXd intercept;
@@ -79,22 +79,38 @@ struct Row {
 };
 
 DriftFit fit_drift(const std::vector<Row>& rows, int n_trials, bool with_slope, bool skip_late) {
-  std::vector<const Row*> use;
-  for (const auto& r : rows)
-    if (!(skip_late && r.late)) use.push_back(&r);
-  const int p = n_trials + (with_slope ? 1 : 0);
-  Eigen::MatrixXd a = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(use.size()), p);
-  Eigen::VectorXd b(static_cast<Eigen::Index>(use.size()));
-  for (std::size_t k = 0; k < use.size(); ++k) {
-    a(static_cast<Eigen::Index>(k), use[k]->trial) = 1.0;
-    if (with_slope) a(static_cast<Eigen::Index>(k), n_trials) = use[k]->column;
-    b(static_cast<Eigen::Index>(k)) = use[k]->residual;
+  // The intercepts are one per trial, so the slope is the within-trial
+  // regression (each trial's rows about their own means) and each intercept
+  // its trial's mean residual less slope x mean column: O(rows), where the
+  // dense design with one column per trial grows as rows x trials. A trial
+  // without rows keeps intercept 0.
+  auto keep = [&](const Row& r) { return !(skip_late && r.late); };
+  Eigen::VectorXd n = Eigen::VectorXd::Zero(n_trials), sum_r = n, sum_c = n;
+  for (const auto& r : rows) {
+    if (!keep(r)) continue;
+    n(r.trial) += 1.0;
+    sum_r(r.trial) += r.residual;
+    sum_c(r.trial) += r.column;
   }
-  const Eigen::VectorXd x = a.completeOrthogonalDecomposition().solve(b);
+  const Eigen::VectorXd safe_n = n.cwiseMax(1.0);
+  const Eigen::VectorXd mean_r = sum_r.cwiseQuotient(safe_n), mean_c = sum_c.cwiseQuotient(safe_n);
   DriftFit f;
-  f.intercept = x.head(n_trials);
-  f.slope = with_slope ? x(n_trials) : 0.0;
-  f.rss = (b - a * x).squaredNorm();
+  if (with_slope) {
+    double sxy = 0.0, sxx = 0.0;
+    for (const auto& r : rows) {
+      if (!keep(r)) continue;
+      const double dc = r.column - mean_c(r.trial);
+      sxy += dc * (r.residual - mean_r(r.trial));
+      sxx += dc * dc;
+    }
+    f.slope = sxx > 0.0 ? sxy / sxx : 0.0;
+  }
+  f.intercept = mean_r - f.slope * mean_c;
+  for (const auto& r : rows) {
+    if (!keep(r)) continue;
+    const double e = r.residual - f.intercept(r.trial) - f.slope * r.column;
+    f.rss += e * e;
+  }
   return f;
 }
 
@@ -314,22 +330,21 @@ std::pair<std::optional<TermScore>, bool> choose_drift_column(const std::vector<
                                                               double alpha) {
   const int nt = static_cast<int>(trials.size());
   const auto n_rows = static_cast<Eigen::Index>(sr.rows.size());
-  Eigen::MatrixXd nuisance = Eigen::MatrixXd::Zero(n_rows, nt);
   Eigen::VectorXd line(n_rows), ramp(n_rows);
   Eigen::Index r = 0;
   for (int k = 0; k < nt; ++k) {
     const Still& s = sr.stills[static_cast<std::size_t>(k)];
     for (std::size_t j = 0; j < s.index.size(); ++j, ++r) {
-      nuisance(r, k) = 1.0;
       line(r) = drift_column(trials[static_cast<std::size_t>(k)], s.index[j], false);
       ramp(r) = drift_column(trials[static_cast<std::size_t>(k)], s.index[j], true);
     }
   }
   StructureOptions so;
   so.alpha = alpha;
+  so.centre_segments = true;  // each trial's own zero offset (its segment's intercept)
   const StructureReport st = analyse_residual(sr.segments, {{"t", "time over the record", line},
                                                             {"t - t_contact", "time since the contact", ramp}},
-                                              so, nuisance);
+                                              so);
   std::optional<TermScore> best;
   if (!st.terms.empty()) best = st.terms.front();
   const bool from_contact = best && best->name == "t - t_contact";

@@ -663,12 +663,26 @@ StructureReport analyse_residual(const std::vector<Eigen::VectorXd>& segments, c
   if (nuisance.cols() > 0 && nuisance.rows() != n)
     throw Error(fmt::format("analyse_residual: nuisance has {} rows for {} residuals", nuisance.rows(), n));
 
-  const bool project = nuisance.cols() > 0;
-  const Eigen::VectorXd e = project ? project_out(nuisance, raw) : raw;
+  if (options.centre_segments && nuisance.cols() > 0)
+    throw Error("analyse_residual: centre_segments and nuisance columns together (give one)");
+  const bool centre = options.centre_segments;
+  const bool project = nuisance.cols() > 0 || centre;
+  auto projected = [&](const Eigen::VectorXd& v) -> Eigen::VectorXd {
+    if (!centre) return nuisance.cols() > 0 ? project_out(nuisance, v) : v;
+    Eigen::VectorXd out = v;
+    Eigen::Index at = 0;
+    for (const auto& segment : segments) {
+      auto part = out.segment(at, segment.size());
+      if (part.size() > 0) part.array() -= part.mean();
+      at += segment.size();
+    }
+    return out;
+  };
+  const Eigen::VectorXd e = projected(raw);
   Eigen::MatrixXd columns(n, static_cast<Eigen::Index>(candidates.size()));
   for (std::size_t j = 0; j < candidates.size(); ++j) {
     auto col = columns.col(static_cast<Eigen::Index>(j));
-    col = project ? project_out(nuisance, candidates[j].values) : candidates[j].values;
+    col = projected(candidates[j].values);
     // A candidate the model already spans leaves only rounding noise: zero.
     const double before = (candidates[j].values.array() - candidates[j].values.mean()).matrix().norm();
     if (project && col.norm() <= 1e-9 * before) col.setZero();

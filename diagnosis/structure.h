@@ -248,6 +248,12 @@ struct StructureOptions {
   double min_share = 0.1;
   double dt_s = 0.0;               // sample spacing; 0 skips the periodogram
   double min_frequency_hz = 0.0;   // see periodogram_peak
+  // Each segment's own mean taken out of the residual and of every
+  // candidate column (the projection onto per-segment intercepts, e.g. one
+  // zero offset per trial) by centring each segment: O(n), where the same
+  // intercepts as nuisance columns cost a dense n x segments matrix.
+  // Not together with nuisance columns.
+  bool centre_segments = false;
 
   // Throws dropfit::Error naming the field and value when one is out of
   // range (negative lags or spacing, alpha outside (0, 1), NaN), and

@@ -1,6 +1,7 @@
 #include "pipeline/outputs.h"
 
 #include <cmath>
+#include <filesystem>
 
 #include "pipeline/wiring.h"
 #include "report/opensim.h"
@@ -11,6 +12,7 @@ namespace dropfit::pipeline {
 
 void add_calibration_outputs(report::OutputSet& out, const calibration::CalibrationResult& result,
                              const VideoSpec& video) {
+  if (result.cameras.empty()) return;  // no cameras: every trial brought its own 3-D markers
   out.add("calibration.json", report::calibration_json(result));
   const bool bottom_left = video.image_origin == ImageOrigin::BottomLeft && video.image_height_px;
   out.add("dlt_coefficients.csv",
@@ -31,6 +33,8 @@ report::TrialSource trial_source(const SessionState& state, std::size_t i) {
   const ForceRecord& record = state.session.trials[i].force;
   source.trigger = record.trigger;
   source.trigger_from_data = record.trigger_from_data;
+  if (state.session.trials[i].has_3d_markers())
+    source.markers_file = std::filesystem::path(state.session.trials[i].markers_path).filename().string();
   if (state.trials[i].force) source.cop_unavailable = state.trials[i].force->cop_unavailable;
   return source;
 }

@@ -21,6 +21,17 @@ void require(const SessionState& state, Stage before, const char* what) {
     throw Error(fmt::format("pipeline: {} needs the stage before it built first", what));
 }
 
+// 3-D markers an optoelectronic system measured (markers.c3d) as the
+// reconstruction stage's trajectories: positions as given, gaps where the
+// system lost a marker; no reprojection residual (NaN: there are no
+// camera images to reproject into).
+reconstruction::Trajectories markers_as_trajectories(const Eigen::MatrixXd& xyz_m) {
+  reconstruction::Trajectories t;
+  t.lab_m = xyz_m;
+  t.residual_px = Eigen::MatrixXd::Constant(xyz_m.rows(), xyz_m.cols() / 3, std::numeric_limits<double>::quiet_NaN());
+  return t;
+}
+
 }  // namespace
 
 int SessionState::accepted() const {
@@ -70,7 +81,14 @@ void calibrate(SessionState& state) {
   state.base_marker_height_m = to.base_marker_height_m;
   state.quiet_guard_s = forceplate::ProcessOptions{}.quiet_guard_s;
   state.baseline_fit_options = fit_options(man, fitting::ModelKind::Model4);
-  state.calibration = choose_calibration(state.session);
+  if (state.session.calibration_needed()) {
+    state.calibration = choose_calibration(state.session);
+  } else {
+    // Every trial brings its own 3-D markers (markers.c3d) and the session
+    // holds no calibration: there are no cameras to calibrate.
+    state.notes.push_back(
+        "calibration: none; every trial brings 3-D markers from an optoelectronic system (markers.c3d)");
+  }
   state.reached = Stage::Calibration;
 }
 
@@ -81,7 +99,9 @@ void reconstruct(SessionState& state) {
   for (const auto& trial : state.session.trials) {
     diagnosis::TrialState& t = state.trials.emplace_back();
     t.result.id = trial.spec.id;
-    t.trajectories = reconstruction::reconstruct(cameras, trial.tracks.uv_px, trial.tracks.n_points());
+    t.trajectories = trial.has_3d_markers()
+                         ? markers_as_trajectories(trial.markers_xyz_m)
+                         : reconstruction::reconstruct(cameras, trial.tracks.uv_px, trial.tracks.n_points());
   }
   state.reached = Stage::Reconstruction;
 }
@@ -95,6 +115,10 @@ void analyse_trials(SessionState& state, double max_tilt_deg, const std::functio
   double z_min = std::numeric_limits<double>::infinity(), z_max = -z_min;
   for (const auto& m : state.session.frame) z_min = std::min(z_min, m.lab_m.z()), z_max = std::max(z_max, m.lab_m.z());
   const auto quality = trial::calibration_quality(state.calibration.after, z_max - z_min);
+  trial::CalibrationQuality no_cameras;
+  no_cameras.unchecked_reason =
+      "the markers come from an optoelectronic system (markers.c3d) whose calibration dropfit cannot check";
+  no_cameras.declared_term = false;
   state.fit_data.clear();
   for (std::size_t i = 0; i < state.session.trials.size(); ++i) {
     const TrialRecording& recording = state.session.trials[i];
@@ -103,8 +127,12 @@ void analyse_trials(SessionState& state, double max_tilt_deg, const std::functio
     trial::TrialOptions options = trial_options(man, recording.spec.id);
     if (max_tilt_deg > 0.0) options.max_tilt_deg = max_tilt_deg;
     TrialOutcome outcome = analyse_trial(man, recording, t.trajectories, options);
-    trial::apply_calibration_gates(outcome.result, t.trajectories, options, quality);
-    trial::add_calibration_uncertainty(outcome.result, quality);
+    // A trial with its own 3-D markers was not measured through the cameras:
+    // the calibration's gates and scale error are not its own (trial.json's
+    // calibration_uncertainty says so).
+    const trial::CalibrationQuality& trial_quality = recording.has_3d_markers() ? no_cameras : quality;
+    trial::apply_calibration_gates(outcome.result, t.trajectories, options, trial_quality);
+    trial::add_calibration_uncertainty(outcome.result, trial_quality);
     t.result = std::move(outcome.result);
     t.force = std::move(outcome.force);
     state.fit_data.push_back(fitting_trial(man, t.result));
@@ -120,6 +148,14 @@ void analyse_trials(SessionState& state, double max_tilt_deg, const std::functio
 void fit_models(SessionState& state, const std::vector<fitting::ModelKind>& models, int threads,
                 const std::function<void(const std::string&)>& say) {
   require(state, Stage::Trials, "fitting");
+  // A refit (e.g. on plate-corrected force) replaces the earlier fits: their
+  // warnings and failures go with them.
+  for (const fitting::ModelKind m : state.models_asked) {
+    const std::string name = fitting::model_name(m);
+    std::erase_if(state.notes, [&](const std::string& note) {
+      return note.rfind(name + ": ", 0) == 0 || note.rfind(name + " fit failed: ", 0) == 0;
+    });
+  }
   state.models_asked = models;
   state.fits.clear();
   state.reached = Stage::Fits;
@@ -260,11 +296,13 @@ SessionState build(Session session, const BuildOptions& options) {
     close_loop(state);
   }
   if (static_cast<int>(state.reached) >= static_cast<int>(Stage::Trials)) {
+    std::vector<std::pair<std::string, report::TrialSource>> sources;
     for (std::size_t i = 0; i < state.trials.size(); ++i) {
       const trial::TrialResult& r = state.trials[i].result;
       if (!r.accepted) state.notes.push_back(fmt::format("trial {} rejected: {}", r.id, r.reject_reason));
-      for (const auto& note : report::trial_source_notes(r.id, trial_source(state, i))) state.notes.push_back(note);
+      sources.emplace_back(r.id, trial_source(state, i));
     }
+    for (auto& note : report::trial_source_notes(sources)) state.notes.push_back(std::move(note));
   }
   return state;
 }

@@ -1,6 +1,7 @@
 #include "report/results.h"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <algorithm>
 #include <cmath>
@@ -139,14 +140,30 @@ namespace {
 json number_or_null(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 }  // namespace
 
-std::vector<std::string> trial_source_notes(const std::string& trial_id, const TrialSource& source) {
+std::vector<std::string> trial_source_notes(const std::vector<std::pair<std::string, TrialSource>>& trials) {
+  // What each trial's source says, then one line per text naming its trials.
+  std::vector<std::pair<std::string, std::vector<std::string>>> by_text;
+  auto add = [&](const std::string& text, const std::string& id) {
+    auto it = std::find_if(by_text.begin(), by_text.end(), [&](const auto& e) { return e.first == text; });
+    if (it == by_text.end()) it = by_text.insert(by_text.end(), {text, {}});
+    it->second.push_back(id);
+  };
+  for (const auto& [id, source] : trials) {
+    if (source.trigger_from_data) add(fmt::format("the force export has no trigger mark: trigger {}", source.trigger), id);
+    if (!source.cop_unavailable.empty())
+      add(fmt::format("no centre of pressure ({}); grf.mot's point and torque columns are NaN, not the plate centre",
+                      source.cop_unavailable),
+          id);
+    if (!source.markers_file.empty())
+      add(fmt::format("3-D markers as an optoelectronic system gave them ({}): no camera calibration or "
+                      "reconstruction, no reprojection residual; the impact velocity's interval holds the free-fall "
+                      "fit's error only (the system's own scale error is not known here)",
+                      source.markers_file),
+          id);
+  }
   std::vector<std::string> notes;
-  if (source.trigger_from_data)
-    notes.push_back(fmt::format("trial {}: the force export has no trigger mark: trigger {}", trial_id, source.trigger));
-  if (!source.cop_unavailable.empty())
-    notes.push_back(fmt::format("trial {}: no centre of pressure ({}); grf.mot's point and torque columns are NaN, "
-                                "not the plate centre",
-                                trial_id, source.cop_unavailable));
+  for (const auto& [text, ids] : by_text)
+    notes.push_back(fmt::format("{} {}: {}", ids.size() == 1 ? "trial" : "trials", fmt::join(ids, ", "), text));
   return notes;
 }
 
@@ -185,6 +202,7 @@ std::string trial_json(const trial::TrialResult& r, const TrialSource* source) {
     doc["trigger"] = source->trigger;
     doc["trigger_from_data"] = source->trigger_from_data;
     doc["centre_of_pressure"] = source->cop_unavailable.empty() ? json(nullptr) : json(source->cop_unavailable);
+    doc["markers"] = source->markers_file.empty() ? std::string("reconstructed from the cameras") : source->markers_file;
   }
   return doc.dump(2) + "\n";
 }

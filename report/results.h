@@ -3,6 +3,7 @@
 // programs, CSV for spreadsheets. Pure formatting: nothing here touches the
 // disk (see report/output.h for writing).
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "calibration/calibration.h"
@@ -45,19 +46,25 @@ std::string xyzres_csv(const reconstruction::Trajectories& trajectories,
 // Where a trial's force record came from, for trial.json: how its trigger
 // sample was found (the export's own mark, the manifest's
 // pretrigger_fraction, or the data: capture's ForceRecord::trigger) and why
-// it has no centre of pressure ("" when it has one).
+// it has no centre of pressure ("" when it has one); and where its 3-D
+// markers came from: markers_file names the optoelectronic system's file
+// (markers.c3d) read in place of reconstructing them, "" when the cameras'
+// tracks were reconstructed.
 struct TrialSource {
   std::string trigger;
   bool trigger_from_data = false;
   std::string cop_unavailable;
+  std::string markers_file;
 };
-// The notes a source gives the report, one line each, naming the trial.
-std::vector<std::string> trial_source_notes(const std::string& trial_id, const TrialSource& source);
+// The notes the trials' sources give the report (trial id, source): one
+// line per kind of note, naming the trials it holds for.
+std::vector<std::string> trial_source_notes(const std::vector<std::pair<std::string, TrialSource>>& trials);
 
 // OUT/trials/T/trial.json and series.csv (t_s,fz_n,impactor_z_m,deformation_m,surface_z_m).
 // With a source: "trigger" (text), "trigger_from_data" and
 // "centre_of_pressure" (null when the record has one, else why not: grf.mot's
-// point columns are then NaN).
+// point columns are then NaN) and "markers" ("reconstructed from the cameras"
+// or the 3-D marker file read).
 std::string trial_json(const trial::TrialResult& result, const TrialSource* source = nullptr);
 std::string series_csv(const trial::Series& series);
 // The session summary in the shape of the paper's Table 1, one row a trial:

@@ -293,9 +293,10 @@ std::string session_report_html(const SessionReport& r) {
   final_model_section(doc, r);
   if (r.calibration) calibration_section(doc, *r.calibration);
   // Where the impact velocity's calibration term comes from when the
-  // calibration could not be checked (the trials' own words).
+  // calibration could not be checked, or why there is none (the trials'
+  // own words).
   for (const auto& t : r.trials)
-    if (t.calibration_uncertainty.rfind("declared", 0) == 0) {
+    if (t.calibration_uncertainty.rfind("declared", 0) == 0 || t.calibration_uncertainty.rfind("none", 0) == 0) {
       doc.note(fmt::format("Impact velocity intervals: {}.", t.calibration_uncertainty));
       break;
     }

@@ -155,6 +155,27 @@ TEST(ValidationUpstream, V6ParametersAndHeldOutErrors) {
   EXPECT_LT(value(scale->error_after, "impulse_error_pct_rms"), 0.2 * value(scale->error_before, "impulse_error_pct_rms"));
 }
 
+// The loop's plate correction refits every model on the corrected force:
+// the earlier fits' warnings go with them (one set of notes, not two).
+TEST(ValidationUpstream, PlateCorrectionRefitKeepsOneSetOfFitNotes) {
+  DROPFIT_NEED_SHARED(validation("v6-formats-drift-scale"));
+  pipeline::BuildOptions options;
+  options.models = {fitting::ModelKind::Model2, fitting::ModelKind::Model4};
+  const pipeline::SessionState state = pipeline::build(validation("v6-formats-drift-scale"), options);
+  ASSERT_TRUE(state.loop.has_value());
+  int corrected = 0, fit_notes = 0;
+  for (std::size_t i = 0; i < state.notes.size(); ++i) {
+    const std::string& note = state.notes[i];
+    corrected += note.find("every trial's force and every fit") != std::string::npos ? 1 : 0;
+    if (note.rfind("model4: ", 0) == 0 || note.rfind("model2: ", 0) == 0) ++fit_notes;
+    EXPECT_EQ(std::count(state.notes.begin(), state.notes.end(), note), 1) << note;
+  }
+  EXPECT_EQ(corrected, 1);
+  // The refit Model 2 and 4 warn of their weakly pinned parameters (as a
+  // clean fit would: the force is corrected, the data no richer).
+  EXPECT_GE(fit_notes, 2);
+}
+
 // Clean sessions: the free-flight balance gives 1 within 0.5 % on each.
 TEST(ValidationUpstream, ImpulseBalanceIsOneOnCleanSessions) {
   for (const std::string name : {"v1-realistic", "v2-linear-control", "v3-hysteresis", "v4-rate"}) {

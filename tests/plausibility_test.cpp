@@ -98,6 +98,26 @@ TEST_F(Plausibility, WrongFrameRateRejectsByVideoAgainstForceVelocity) {
   expect_all_rejected(run(), "impact velocity [0-9.]+ m/s from video against [0-9.e+-]+ m/s from the force impulse");
 }
 
+// The mat top mistyped 20 mm high (0.225 for 0.205 m): the surface markers
+// rest 20 mm below it, so either the manifest or the markers are wrong and
+// every trial says so, naming both; 8 mm off (beyond the 5 mm within which
+// the markers' height is used, inside the 15 mm tolerance) the declared top
+// is kept and the trials stand.
+TEST_F(Plausibility, MatTopTheCamerasSeeAgainstTheDeclaredOne) {
+  edit("session.toml", "mat_top_z_m = 0.205", "mat_top_z_m = 0.225");
+  expect_all_rejected(run(), "the cameras see the mat top .* at z = 0\\.205[0-9] m, -(19|20)\\.[0-9] mm from the declared "
+                             "\\[forceplate\\] mat_top_z_m = 0\\.2250 m .*either mat_top_z_m is wrong or the "
+                             "surface markers are not on the mat top");
+  edit("session.toml", "mat_top_z_m = 0.225", "mat_top_z_m = 0.213");
+  const CliRun r = run("process");
+  ASSERT_EQ(r.exit_code, 0) << r.describe();
+  for (int k = 1; k <= 5; ++k) {
+    const auto t = trial_json(fmt::format("trial{}", k));
+    EXPECT_TRUE(t["accepted"].get<bool>()) << t.dump();
+    EXPECT_DOUBLE_EQ(t["contact_height_m"].get<double>(), 0.213) << t.dump();
+  }
+}
+
 // The impactor's mass scaled so that impulse / (M v) is 1.87 and 0.15: every
 // trial rejected; a mass no impactor has (3.04e-302 kg) is an input error
 // naming the manifest's line and field before anything is measured.

@@ -4,6 +4,8 @@
 // their textbook values.
 #include "diagnosis/structure.h"
 
+#include "core/error.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -136,6 +138,41 @@ TEST(Structure, NuisanceColumnsAreProjectedOut) {
   EXPECT_NE(rep.best()->name, "xdot");
   EXPECT_NEAR(rep.find("x")->share_alone, 0.0, 1e-9);
   EXPECT_GT(rep.find("x^3")->share_alone, 0.9) << rep.summary();
+}
+
+TEST(Structure, CentringSegmentsIsProjectingOutPerSegmentIntercepts) {
+  // Six segments (trials) with their own offsets and a drift along a column
+  // that also differs in level between segments: centring each segment
+  // must give what the dense one-hot intercept columns give.
+  std::vector<Eigen::VectorXd> segments;
+  std::vector<int> lengths = {150, 90, 200, 120, 60, 180};
+  int n = 0;
+  for (int len : lengths) n += len;
+  Eigen::VectorXd t(n), noise = gaussian(n, 1.0, 17);
+  Eigen::MatrixXd one_hot = Eigen::MatrixXd::Zero(n, static_cast<Eigen::Index>(lengths.size()));
+  int at = 0;
+  for (std::size_t k = 0; k < lengths.size(); ++k) {
+    Eigen::VectorXd seg(lengths[k]);
+    for (int j = 0; j < lengths[k]; ++j) {
+      t(at + j) = 0.3 * static_cast<double>(k) + 0.001 * j;
+      one_hot(at + j, static_cast<Eigen::Index>(k)) = 1.0;
+      seg(j) = 20.0 * static_cast<double>(k) - 7.0 + 40.0 * t(at + j) + noise(at + j);
+    }
+    segments.push_back(seg);
+    at += lengths[k];
+  }
+  const std::vector<Candidate> candidates = {{"t", "time", t}, {"t2", "time squared", t.array().square().matrix()}};
+  StructureOptions centred;
+  centred.centre_segments = true;
+  const StructureReport a = analyse_residual(segments, candidates, {}, one_hot);
+  const StructureReport b = analyse_residual(segments, candidates, centred);
+  for (const char* name : {"t", "t2"}) {
+    EXPECT_NEAR(a.find(name)->r, b.find(name)->r, 1e-9) << name;
+    EXPECT_NEAR(a.find(name)->coefficient, b.find(name)->coefficient, 1e-6 * std::abs(a.find(name)->coefficient));
+  }
+  EXPECT_GT(b.find("t")->share_alone, 0.1);  // the drift is seen within the segments
+  EXPECT_NEAR(a.whiteness.q, b.whiteness.q, 1e-6 * a.whiteness.q);
+  EXPECT_THROW(analyse_residual(segments, candidates, centred, one_hot), Error);
 }
 
 TEST(Structure, SparseFitFindsTwoTermsAmongNine) {

@@ -585,10 +585,9 @@ void impulse_checks(const forceplate::ForceTrial& force, const TrialOptions& o, 
 // The mat top as the cameras see it: the surface markers' mean height over
 // the frames where every one is seen, before the face first comes within
 // 20 mm of the surveyed top (after the rebound the mat may still be
-// recovering); NaN when fewer than min_rest_frames such frames or
-// the mean is more than max_surface_reference_m from mat_top_z_m (see the
-// header: contact height).
-// `se_m`: the mean's standard error (the frames' scatter over sqrt(n)).
+// recovering); NaN when fewer than min_rest_frames such frames (see the
+// header: contact height). `se_m`: the mean's standard error (the frames'
+// scatter over sqrt(n)).
 double surface_rest_height_m(const Eigen::VectorXd& h, const Eigen::VectorXd& surf, const TrialOptions& o,
                              double* se_m) {
   constexpr double kClear_m = 0.020;
@@ -605,7 +604,7 @@ double surface_rest_height_m(const Eigen::VectorXd& h, const Eigen::VectorXd& su
   if (n < o.min_rest_frames) return kNaN;
   const double rest = sum / n;
   *se_m = std::sqrt(std::max(sum2 / n - rest * rest, 0.0) / std::max(n - 1, 1));
-  return std::abs(rest - o.mat_top_z_m) <= o.max_surface_reference_m ? rest : kNaN;
+  return rest;
 }
 
 TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string& force_error,
@@ -624,9 +623,17 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
   // Everything below measures from the contact height.
   TrialOptions o = given;
   double rest_se_m = kNaN;
-  if (const double rest = surface_rest_height_m(h, surf, given, &rest_se_m); std::isfinite(rest)) {
+  const double rest = surface_rest_height_m(h, surf, given, &rest_se_m);
+  if (std::abs(rest - given.mat_top_z_m) <= given.max_surface_reference_m) {
     o.mat_top_z_m = rest;
     res.contact_height_se_m = rest_se_m;
+  }
+  if (std::abs(rest - given.mat_top_z_m) > given.max_surface_disagreement_m) {
+    reasons.push_back(fmt::format(
+        "the cameras see the mat top (the surface markers at rest) at z = {:.4f} m, {:+.1f} mm from the declared "
+        "[forceplate] mat_top_z_m = {:.4f} m (tolerance {:.0f} mm): either mat_top_z_m is wrong or the surface "
+        "markers are not on the mat top; the contact instant, impact velocity and deformation depend on which",
+        rest, 1e3 * (rest - given.mat_top_z_m), given.mat_top_z_m, 1e3 * given.max_surface_disagreement_m));
   }
   res.contact_height_m = o.mat_top_z_m;
   const double top = o.mat_top_z_m;
@@ -739,6 +746,7 @@ void TrialOptions::validate() const {
   check::finite(w, "base_marker_height_m", base_marker_height_m);
   check::finite(w, "mat_top_z_m", mat_top_z_m);
   check::non_negative(w, "max_surface_reference_m", max_surface_reference_m);
+  check::non_negative(w, "max_surface_disagreement_m", max_surface_disagreement_m);
   check::at_least(w, "min_rest_frames", min_rest_frames, 1);
   check::in_range(w, "max_tilt_deg", max_tilt_deg, 0.0, 90.0);
   check::positive(w, "freefall_window_s", freefall_window_s);
@@ -923,13 +931,18 @@ void apply_calibration_gates(TrialResult& result, const reconstruction::Trajecto
 
 void add_calibration_uncertainty(TrialResult& result, const CalibrationQuality& quality) {
   const bool checked = std::isfinite(quality.vertical_scale_sd);
+  if (!checked && !quality.declared_term) {
+    // No camera calibration measured these positions: no term, and said so.
+    result.calibration_uncertainty =
+        fmt::format("none: {}; the interval is the free-fall fit's alone", quality.unchecked_reason);
+    return;
+  }
   const double sd = checked ? quality.vertical_scale_sd : kDeclaredCalibrationScaleSd;
   result.calibration_scale_sd = sd;
   result.calibration_uncertainty =
       checked ? "check markers"
-              : fmt::format("declared: the calibration was not checked (no check markers spanning a height), so its "
-                            "vertical scale is taken as accurate to {:.2g} %",
-                            100.0 * sd);
+              : fmt::format("declared: {}, so its vertical scale is taken as accurate to {:.2g} %",
+                            quality.unchecked_reason, 100.0 * sd);
   // Travel measured from the manifest's mat top (no surface reference): the
   // calibration's error at that height.
   if (!std::isfinite(result.contact_height_se_m) && std::isfinite(result.contact_height_m)) {

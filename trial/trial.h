@@ -59,6 +59,11 @@
 //   residual proportional to the face's velocity), which the surveyed
 //   height does not. A larger gap means the markers are not on the
 //   surface; the manifest's height is kept (TrialResult::contact_height_m).
+//   Beyond max_surface_disagreement_m the cameras and the manifest
+//   disagree on where the mat is (a mistyped mat_top_z_m, or markers that
+//   are not on the mat top: which one is not known) and the trial is
+//   rejected naming both: at 5 m/s 15 mm is 3 ms of contact instant and
+//   15 mm of deformation, far outside any interval the trial states.
 // - Max deformation: the contact height minus the lowest face height during contact,
 //   from a quadratic fitted to the frames within
 //   deformation_fit_half_window_s of the lowest one; it needs two frames
@@ -149,6 +154,7 @@ struct TrialOptions {
   double base_marker_height_m = 0.0;      // base markers above the contact face
   double mat_top_z_m = 0.205;             // undeformed mat top, lab frame
   double max_surface_reference_m = 0.005; // surface markers' rest height used within this of it
+  double max_surface_disagreement_m = 0.015;  // beyond: rejected (see above)
   int min_rest_frames = 5;                // ... seen at rest in at least this many frames
   double max_tilt_deg = 6.0;              // the paper's trials: 2.6 +- 0.87 deg
   double freefall_window_s = 0.060;
@@ -327,6 +333,12 @@ struct CalibrationQuality {
   double check_rms_m = std::numeric_limits<double>::quiet_NaN();   // 3-D (norm of the per-axis RMS)
   double vertical_scale_sd = std::numeric_limits<double>::quiet_NaN();
   std::string problem;
+  // Why vertical_scale_sd could not be measured (said with the declared
+  // term), and whether the declared term applies (false: positions that no
+  // camera calibration of the session measured, e.g. a motion-capture
+  // system's markers.c3d; the interval is then the free-fall fit's, said so).
+  std::string unchecked_reason = "the calibration was not checked (no check markers spanning a height)";
+  bool declared_term = true;
 };
 constexpr double kMaxCalibrationFitRmsPx = 10.0;
 constexpr double kMaxCalibrationCheckRmsM = 0.010;
