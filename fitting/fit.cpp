@@ -359,11 +359,20 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
     res.estimates.push_back(e);
   }
   std::vector<double> shift_se;
-  covariance(best, fc.space, options, res.params, &res.estimates, &shift_se, &res.warnings);
+  // The error budget: each trial's channels as AR(1) noise, the inputs as
+  // nuisance parameters with their priors (fit.h).
+  const Nuisances nuisances =
+      nuisance_columns(fc.preps, fc.space, options, res.params, best.shifts, best.residuals.size());
+  const ErrorBudget budget = budget_at(fc.preps, best, nuisances);
+  covariance(best, fc.space, options, res.params, budget, &res.estimates, &shift_se, &res.warnings);
   alternatives(fc.search, fc.space, options, &res);
+  for (auto& e : res.estimates)
+    if (!e.identifiable) e.ci_low = e.ci_high = kNaN;
   res.channels = channel_shares(fc.preps, best.residuals, &res.warnings);
+  mark_model_limited(&res);
   add_fixed_estimates(options, &res);
   predict_trials(trials, options, fc, shift_se, &res);
+  add_prediction_intervals(trials, fc.preps, fc.space, options, best.u, budget, nuisances, &res);
 
   if (options.sensitivity) {
     Impact imp = fc.preps.front().impact;
@@ -383,17 +392,32 @@ std::string FitResult::report() const {
   os << fmt::format("{} fitted to {} by {}: cost {:.6g} over {} residuals, {} simulations, {:.2f} s\n",
                     model_name(model), fmt::join(train_ids, ", "), optimizer, cost, n_residuals, evaluations, seconds);
   os << "parameters:\n";
-  for (const auto& e : estimates)
-    os << fmt::format("  {:<16} {:>12.6g}  {}\n", e.name, e.value,
-                      !e.free ? "(fixed)"
-                              : (std::isfinite(e.rel_se) ? fmt::format("SE {:.3g} ({:.2g} %){}", e.se, 100.0 * e.rel_se,
-                                                                       e.identifiable ? "" : "  NOT IDENTIFIED")
-                                                         : std::string("SE n/a  NOT IDENTIFIED")));
+  for (const auto& e : estimates) {
+    std::string what = "(fixed)";
+    if (e.free && !std::isfinite(e.rel_se)) {
+      what = "SE n/a  NOT IDENTIFIED";
+    } else if (e.free) {
+      what = fmt::format("SE {:.3g} ({:.2g} %)", e.se, 100.0 * e.rel_se);
+      what += e.identifiable && std::isfinite(e.ci_low) ? fmt::format("  95 % [{:.4g}, {:.4g}]", e.ci_low, e.ci_high)
+                                                         : (e.identifiable ? "" : "  NOT IDENTIFIED");
+      if (e.model_limited) what += "  model-limited";
+    }
+    os << fmt::format("  {:<16} {:>12.6g}  {}\n", e.name, e.value, what);
+  }
   os << "trials (rms % peak, peak % diff, time to peak ms diff, max deformation mm diff):\n";
   for (const auto& t : trials)
     os << fmt::format("  {:<10} v {:.2f} m/s{} {:7.2f} {:+7.2f} {:+6.1f} {:+6.1f}\n", t.id, t.impact_velocity_m_s,
                       t.train ? " (train)" : "        ", t.comparison.rms_force_pct_peak,
                       t.comparison.peak_force_pct_diff, t.comparison.time_to_peak_ms_diff, t.max_deformation_mm_diff);
+  os << "predicted, with 95 % intervals (peak force N, time to peak ms, max deformation mm):\n";
+  for (const auto& t : trials) {
+    const Prediction& p = t.prediction;
+    if (!std::isfinite(p.peak_force_n.se)) continue;
+    os << fmt::format("  {:<10} {:.0f} [{:.0f}, {:.0f}]  {:.2f} [{:.2f}, {:.2f}]  {:.1f} [{:.1f}, {:.1f}]\n", t.id,
+                      p.peak_force_n.value, p.peak_force_n.low, p.peak_force_n.high, 1e3 * p.time_to_peak_s.value,
+                      1e3 * p.time_to_peak_s.low, 1e3 * p.time_to_peak_s.high, 1e3 * p.max_deformation_m.value,
+                      1e3 * p.max_deformation_m.low, 1e3 * p.max_deformation_m.high);
+  }
   if (!sensitivity.empty()) {
     os << "sensitivity of peak force to -10 % / +10 %:\n";
     for (const auto& s : sensitivity)

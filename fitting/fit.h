@@ -54,10 +54,31 @@
 // integrator, the derivative directions split over `threads`); only a
 // model given as a simulate callback is fitted with central differences.
 //
-// Uncertainty: J^T J at the optimum, inverted and scaled by the residual
-// variance (RSS / (N - p)); standard errors of log-parameters are relative
-// standard errors. Residuals of a time series are correlated, so these are
-// optimistic; held-out trials are the stronger test.
+// Uncertainty (fitting/error_budget.h): the sandwich covariance of the
+// estimate, linearised at the optimum, from
+// - the noise as it is: each channel of each trial an AR(1) process fitted
+//   to its own residuals (variance and lag-1 correlation), so that
+//   correlated residuals and a channel that stays above its noise (a model
+//   that misses something) widen the intervals by what they imply;
+// - the inputs as measured (the error budget): each training trial's impact
+//   velocity, video contact instant and travel reference, and the session's
+//   calibration scale, are nuisance parameters with priors from their own
+//   measurements (TrialData's *_se fields: the free-fall fit's covariance,
+//   the contact height's error, the calibration's vertical scale), carried
+//   through d residuals / d input into the parameters' covariance (the
+//   estimate is the one at the measured inputs; their errors widen it).
+// 95 % intervals are symmetric in the optimiser's coordinates (log
+// stiffness and damping: value x exp(+-1.96 relative SE)); a parameter at
+// its bound, in a direction the data do not constrain, or in another basin
+// that fits as well has no interval and is reported not identifiable.
+// A parameter is `model_limited` when a channel's residual stays above its
+// noise (RMS over 1.5 noise SDs with lag-1 correlation over 0.5): its
+// interval then holds the residual's structure, not the noise alone.
+// Every trial's predicted peak force, time to peak, largest travel and
+// force-time curve carry 95 % intervals from the parameters' covariance, the
+// trial's own velocity error and the shared calibration scale (central
+// differences of the model's prediction), against the true (noise-free)
+// quantity.
 //
 // Validation: the fitted parameters predict every trial from its own
 // impact velocity (only its clock shift is fitted); key characteristics
@@ -98,6 +119,15 @@ struct TrialData {
   // Measured noise of each channel (NaN: FitOptions' fallback).
   double force_noise_n = std::numeric_limits<double>::quiet_NaN();   // plate Fz SD, quiet pre-trigger
   double marker_noise_m = std::numeric_limits<double>::quiet_NaN();  // face height SD, free-fall fit
+  // The error budget of the inputs (one sigma; NaN: taken as exact):
+  // the free-fall fit's impact velocity and video contact instant (with
+  // their covariance), the travel reference (contact height), and the
+  // calibration's relative vertical scale error (common to the session).
+  double impact_velocity_se_m_s = std::numeric_limits<double>::quiet_NaN();
+  double contact_time_se_s = std::numeric_limits<double>::quiet_NaN();
+  double velocity_contact_time_cov = std::numeric_limits<double>::quiet_NaN();
+  double travel_reference_se_m = std::numeric_limits<double>::quiet_NaN();
+  double calibration_scale_sd = std::numeric_limits<double>::quiet_NaN();
 };
 
 // A custom simulator (a user's own model); the fitter asks it for the
@@ -191,6 +221,25 @@ struct ParameterEstimate {
   bool free = true;
   bool identifiable = true;
   bool at_bound = false;  // ended within a thousandth of its searched span from a bound
+  // 95 % interval (NaN when not identifiable), and the SE a white-noise fit
+  // at the measured inputs would state (for comparison only).
+  double ci_low = std::numeric_limits<double>::quiet_NaN();
+  double ci_high = std::numeric_limits<double>::quiet_NaN();
+  double se_white = std::numeric_limits<double>::quiet_NaN();
+  bool model_limited = false;  // a channel's residual stays above its noise (see above)
+};
+
+// A predicted quantity and its 95 % interval for the true value.
+struct PredictionInterval {
+  double value = std::numeric_limits<double>::quiet_NaN();
+  double se = std::numeric_limits<double>::quiet_NaN();
+  double low = std::numeric_limits<double>::quiet_NaN();
+  double high = std::numeric_limits<double>::quiet_NaN();
+};
+
+struct Prediction {
+  PredictionInterval peak_force_n, time_to_peak_s, max_deformation_m;  // time from the contact
+  Eigen::VectorXd force_low_n, force_high_n;  // the force-time band on the trial's samples (t_s)
 };
 
 struct TrialReport {
@@ -205,6 +254,10 @@ struct TrialReport {
   double rms_impactor_mm = std::numeric_limits<double>::quiet_NaN();
   double window_end_s = 0.0;
   Simulation simulation;                     // on the trial's own samples (t_s), force shifted by the fit
+  Prediction prediction;                     // with 95 % intervals (see above)
+  // The video-force clock offset's correction (contact_shift_s) with its
+  // SE including the video contact instant's own error.
+  double offset_se_s = std::numeric_limits<double>::quiet_NaN();
 };
 
 // One measured channel's part of the cost at the optimum.

@@ -131,6 +131,10 @@ void fill_residuals(const Prepared& p, const std::vector<T>& grf, const std::vec
 
 }  // namespace
 
+void residuals_at(const Prepared& p, const detail::Trace<double>& tr, double shift, double* out) {
+  fill_residuals<double>(p, tr.grf, tr.impactor, shift, out);
+}
+
 // The clock shift that fits a simulated force best (doubles): a scan at a
 // quarter grid step over the bound, then golden-section refinement.
 double profile_shift(const Prepared& p, const std::vector<double>& grf) {

@@ -115,7 +115,10 @@ void analyse_trials(SessionState& state, double max_tilt_deg, const std::functio
   double z_min = std::numeric_limits<double>::infinity(), z_max = -z_min;
   for (const auto& m : state.session.frame) z_min = std::min(z_min, m.lab_m.z()), z_max = std::max(z_max, m.lab_m.z());
   const auto quality = trial::calibration_quality(state.calibration.after, z_max - z_min);
-  const trial::CalibrationQuality no_cameras;
+  trial::CalibrationQuality no_cameras;
+  no_cameras.unchecked_reason =
+      "the markers come from an optoelectronic system (markers.c3d) whose calibration dropfit cannot check";
+  no_cameras.declared_term = false;
   state.fit_data.clear();
   for (std::size_t i = 0; i < state.session.trials.size(); ++i) {
     const TrialRecording& recording = state.session.trials[i];
@@ -125,7 +128,8 @@ void analyse_trials(SessionState& state, double max_tilt_deg, const std::functio
     if (max_tilt_deg > 0.0) options.max_tilt_deg = max_tilt_deg;
     TrialOutcome outcome = analyse_trial(man, recording, t.trajectories, options);
     // A trial with its own 3-D markers was not measured through the cameras:
-    // the calibration's gates and scale error are not its own.
+    // the calibration's gates and scale error are not its own (trial.json's
+    // calibration_uncertainty says so).
     const trial::CalibrationQuality& trial_quality = recording.has_3d_markers() ? no_cameras : quality;
     trial::apply_calibration_gates(outcome.result, t.trajectories, options, trial_quality);
     trial::add_calibration_uncertainty(outcome.result, trial_quality);

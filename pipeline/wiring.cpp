@@ -134,6 +134,12 @@ fitting::TrialData fitting_trial(const Manifest& manifest, const trial::TrialRes
   data.gravity_m_s2 = manifest.gravity_m_s2;
   data.force_noise_n = result.force_noise_n;
   data.marker_noise_m = result.freefall_rms_m;
+  // The inputs' error budget: the fit carries them as nuisance parameters.
+  data.impact_velocity_se_m_s = result.impact_velocity_se_m_s;
+  data.contact_time_se_s = result.video_contact_time_se_s;
+  data.velocity_contact_time_cov = result.velocity_contact_time_cov;
+  data.travel_reference_se_m = result.contact_height_se_m;
+  data.calibration_scale_sd = result.calibration_scale_sd;
   const auto& s = result.series;
   // The surface markers' height at rest: their mean before contact. The
   // impactor's travel is already measured from the mat top the cameras see
@@ -176,7 +182,8 @@ void apply_fitted_offset(trial::TrialResult& result, const fitting::FitResult& f
     if (t.id != result.id || !std::isfinite(t.contact_shift_se_s)) continue;
     result.video_offset_onset_s = result.video_offset_s;
     result.video_offset_s -= t.contact_shift_s;
-    result.video_offset_se_s = t.contact_shift_se_s;
+    // The fitted contact's SE and the video contact instant's own.
+    result.video_offset_se_s = std::isfinite(t.offset_se_s) ? t.offset_se_s : t.contact_shift_se_s;
   }
 }
 

@@ -173,6 +173,11 @@ std::string trial_json(const trial::TrialResult& r, const TrialSource* source) {
               {"reject_reason", r.reject_reason},
               {"impact_velocity_m_s", number_or_null(r.impact_velocity_m_s)},
               {"impact_velocity_ci_m_s", number_or_null(r.impact_velocity_ci_m_s)},
+              {"impact_velocity_se_m_s", number_or_null(r.impact_velocity_se_m_s)},
+              {"calibration_scale_sd", number_or_null(r.calibration_scale_sd)},
+              {"calibration_uncertainty", r.calibration_uncertainty},
+              {"video_contact_time_se_s", number_or_null(r.video_contact_time_se_s)},
+              {"contact_height_se_m", number_or_null(r.contact_height_se_m)},
               {"max_deformation_m", number_or_null(r.max_deformation_m)},
               {"tilt_deg", number_or_null(r.tilt_deg)},
               {"peak_force_n", number_or_null(r.peak_force_n)},
@@ -228,6 +233,19 @@ std::string summary_csv(const std::vector<trial::TrialResult>& trials) {
 }
 
 namespace {
+json interval_json(const fitting::PredictionInterval& p) {
+  return {{"value", number_or_null(p.value)}, {"se", number_or_null(p.se)}, {"low", number_or_null(p.low)},
+          {"high", number_or_null(p.high)}};
+}
+
+// A trial's predicted quantities with their 95 % intervals (the force-time
+// band is in the trial's series CSV).
+json prediction_json(const fitting::Prediction& p) {
+  return {{"peak_force_n", interval_json(p.peak_force_n)},
+          {"time_to_peak_s", interval_json(p.time_to_peak_s)},
+          {"max_deformation_m", interval_json(p.max_deformation_m)}};
+}
+
 json characteristics_json(const fitting::Characteristics& c) {
   return {{"peak_force_n", number_or_null(c.peak_force_n)},
           {"time_to_peak_s", number_or_null(c.time_to_peak_s)},
@@ -253,7 +271,11 @@ std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg, con
                          {"rel_se", number_or_null(e.rel_se)},
                          {"free", e.free},
                          {"identifiable", e.identifiable},
-                         {"at_bound", e.at_bound}});
+                         {"at_bound", e.at_bound},
+                         {"ci_low_95", number_or_null(e.ci_low)},
+                         {"ci_high_95", number_or_null(e.ci_high)},
+                         {"se_white_noise", number_or_null(e.se_white)},
+                         {"model_limited", e.model_limited}});
   }
   // A parameter the search box stopped, not the data, is said in the file
   // a simulator loads, whatever the fit's own warnings say.
@@ -277,6 +299,8 @@ std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg, con
                       {"rms_impactor_mm", number_or_null(t.rms_impactor_mm)},
                       {"contact_shift_s", t.contact_shift_s},
                       {"contact_shift_se_s", number_or_null(t.contact_shift_se_s)},
+                      {"offset_se_s", number_or_null(t.offset_se_s)},
+                      {"prediction", prediction_json(t.prediction)},
                       {"measured", characteristics_json(t.measured)},
                       {"simulated", characteristics_json(t.simulated)}});
   }
@@ -330,15 +354,16 @@ std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg, con
 std::string fit_series_csv(const fitting::TrialData& measured, const fitting::TrialReport& report) {
   std::string out =
       "t_s,measured_fz_n,simulated_fz_n,measured_impactor_m,simulated_impactor_m,measured_surface_m,simulated_surface_m,"
-      "simulated_layer1_m,simulated_layer2_m\n";
+      "simulated_layer1_m,simulated_layer2_m,simulated_fz_low_n,simulated_fz_high_n\n";
   const auto& sim = report.simulation;
   const Eigen::Index n = std::min<Eigen::Index>(measured.t_s.size(), sim.t_s.size());
   auto at = [](const Eigen::VectorXd& v, Eigen::Index i) { return i < v.size() ? v[i] : NAN; };
   for (Eigen::Index i = 0; i < n; ++i) {
-    out += fmt::format("{},{},{},{},{},{},{},{},{}\n", csv_number(measured.t_s[i]), csv_number(measured.grf_n[i]),
+    out += fmt::format("{},{},{},{},{},{},{},{},{},{},{}\n", csv_number(measured.t_s[i]), csv_number(measured.grf_n[i]),
                        csv_number(sim.grf_n[i]), csv_number(at(measured.impactor_m, i)), csv_number(sim.impactor_m[i]),
                        csv_number(at(measured.surface_m, i)), csv_number(sim.surface_m[i]), csv_number(at(sim.layer1_m, i)),
-                       csv_number(at(sim.layer2_m, i)));
+                       csv_number(at(sim.layer2_m, i)), csv_number(at(report.prediction.force_low_n, i)),
+                       csv_number(at(report.prediction.force_high_n, i)));
   }
   return out;
 }

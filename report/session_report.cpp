@@ -182,13 +182,18 @@ void parameters_section(HtmlDocument& doc, const SessionReport& r) {
         if (e.name != name) continue;
         any = true;
         cell = std::isfinite(e.se) && e.free ? fmt::format("{:.4g} ± {:.2g}", e.value, e.se) : fmt::format("{:.4g}", e.value);
+        if (e.free && std::isfinite(e.ci_low)) cell += fmt::format(" [{:.4g}, {:.4g}]", e.ci_low, e.ci_high);
         if (!e.identifiable) cell += " (not identified)";
+        if (e.model_limited) cell += " (model-limited)";
       }
       row.push_back(cell);
     }
     if (any) rows.push_back(row);
   }
-  doc.table(header, rows, "Stiffness (N/m), damping (N s/m) and masses (kg) with standard errors (the shape of the paper's Table 2)", 1);
+  doc.table(header, rows,
+            "Stiffness (N/m), damping (N s/m) and masses (kg) with standard errors and 95 % intervals (the shape of the "
+            "paper's Table 2)",
+            1);
   for (const auto& fit : r.fits) {
     for (const auto& w : fit.warnings) doc.note(fmt::format("Model {}: {}", static_cast<int>(fit.model), w));
   }
@@ -210,6 +215,24 @@ void parameters_section(HtmlDocument& doc, const SessionReport& r) {
     rows2.push_back(row);
   }
   doc.table(h2, rows2, "Simulated minus measured, each trial predicted from its own impact velocity", 1);
+
+  // Each trial's predicted quantities with their 95 % intervals (parameters,
+  // the trial's own velocity and the calibration's scale).
+  for (const auto& fit : r.fits) {
+    std::vector<std::vector<std::string>> rows4;
+    for (const auto& t : fit.trials) {
+      const auto& p = t.prediction;
+      if (!std::isfinite(p.peak_force_n.se)) continue;
+      auto iv = [](const fitting::PredictionInterval& i, double scale, int digits) {
+        return fmt::format("{} [{}, {}]", num(i.value * scale, digits), num(i.low * scale, digits), num(i.high * scale, digits));
+      };
+      rows4.push_back({t.id + (t.train ? " (train)" : ""), iv(p.peak_force_n, 1.0, 0), num(t.measured.peak_force_n, 0),
+                       iv(p.time_to_peak_s, 1e3, 1), iv(p.max_deformation_m, 1e3, 1)});
+    }
+    if (rows4.empty()) continue;
+    doc.table({"trial", "peak force (N)", "measured (N)", "time to peak (ms)", "max deformation (mm)"}, rows4,
+              fmt::format("Model {} predictions with 95 % intervals", static_cast<int>(fit.model)), 1);
+  }
 
   for (const auto& fit : r.fits) {
     if (fit.sensitivity.empty()) continue;
@@ -269,6 +292,14 @@ std::string session_report_html(const SessionReport& r) {
   summary_section(doc, r);
   final_model_section(doc, r);
   if (r.calibration) calibration_section(doc, *r.calibration);
+  // Where the impact velocity's calibration term comes from when the
+  // calibration could not be checked, or why there is none (the trials'
+  // own words).
+  for (const auto& t : r.trials)
+    if (t.calibration_uncertainty.rfind("declared", 0) == 0 || t.calibration_uncertainty.rfind("none", 0) == 0) {
+      doc.note(fmt::format("Impact velocity intervals: {}.", t.calibration_uncertainty));
+      break;
+    }
   trials_section(doc, r);
   parameters_section(doc, r);
   loop_section(doc, r);

@@ -111,6 +111,9 @@ TEST_P(MarkersC3dRun, SameTrialsAndMatAsTheCameras) {
     // never wider than the cameras' (which adds the calibration's scale).
     EXPECT_GT(m.impact_velocity_ci_m_s, 0.0);
     EXPECT_LE(m.impact_velocity_ci_m_s, c.impact_velocity_ci_m_s * 1.05);
+    EXPECT_EQ(m.calibration_uncertainty.rfind("none: the markers come from an optoelectronic system", 0), 0u)
+        << m.calibration_uncertainty;
+    EXPECT_EQ(c.calibration_uncertainty, "check markers");
     EXPECT_TRUE(std::isnan(m.reprojection_residual_px));
     EXPECT_EQ(pipeline::trial_source(markers, i).markers_file, "markers.c3d");
     EXPECT_EQ(pipeline::trial_source(cameras, i).markers_file, "");

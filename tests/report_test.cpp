@@ -8,12 +8,14 @@
 #include <fstream>
 #include <limits>
 #include <sstream>
+#include <vector>
 
 #include "core/error.h"
 #include "report/html.h"
 #include "report/output.h"
 #include "report/plot.h"
 #include "report/results.h"
+#include "report/session_report.h"
 
 namespace fs = std::filesystem;
 using namespace dropfit::report;
@@ -118,23 +120,44 @@ TEST(FitSeriesCsv, CarriesTheLayersTravelBesideTheMeasuredSurface) {
   rep.simulation.surface_m = Eigen::Vector3d(0.0, 0.0, 0.0041);
   rep.simulation.layer1_m = Eigen::Vector3d(0.0, 0.0, 0.0007);
   rep.simulation.layer2_m = Eigen::Vector3d(0.0, 0.0, 0.0002);
+  rep.prediction.force_low_n = Eigen::Vector3d(0.0, 0.0, 395.0);
+  rep.prediction.force_high_n = Eigen::Vector3d(0.0, 0.0, 425.0);
   const std::string csv = fit_series_csv(measured, rep);
   std::istringstream in(csv);
   std::string header, row;
   std::getline(in, header);
   EXPECT_EQ(header,
             "t_s,measured_fz_n,simulated_fz_n,measured_impactor_m,simulated_impactor_m,measured_surface_m,"
-            "simulated_surface_m,simulated_layer1_m,simulated_layer2_m");
+            "simulated_surface_m,simulated_layer1_m,simulated_layer2_m,simulated_fz_low_n,simulated_fz_high_n");
   int rows = 0;
   std::string last;
   while (std::getline(in, row)) {
     ++rows;
     last = row;
-    EXPECT_EQ(std::count(row.begin(), row.end(), ','), 8) << row;
+    EXPECT_EQ(std::count(row.begin(), row.end(), ','), 10) << row;
   }
   EXPECT_EQ(rows, 3);
-  // The last row's two layer columns, read back within 1e-12 m.
-  const size_t c7 = last.rfind(',', last.rfind(',') - 1);
-  EXPECT_NEAR(std::stod(last.substr(c7 + 1)), 0.0007, 1e-12);
-  EXPECT_NEAR(std::stod(last.substr(last.rfind(',') + 1)), 0.0002, 1e-12);
+  // The last row's two layer columns (within 1e-12 m) and the force band.
+  std::vector<double> cols;
+  std::istringstream fields(last);
+  for (std::string f; std::getline(fields, f, ',');) cols.push_back(std::stod(f));
+  ASSERT_EQ(cols.size(), 11u);
+  EXPECT_NEAR(cols[7], 0.0007, 1e-12);
+  EXPECT_NEAR(cols[8], 0.0002, 1e-12);
+  EXPECT_NEAR(cols[9], 395.0, 1e-9);
+  EXPECT_NEAR(cols[10], 425.0, 1e-9);
+}
+
+// A session whose calibration could not be checked: the report says where the
+// impact velocity's calibration term comes from (the trials' own words), and
+// says nothing of the kind when the check markers measured it.
+TEST(SessionReportHtml, SaysWhenTheCalibrationTermIsDeclared) {
+  SessionReport r;
+  r.session_name = "s";
+  r.trials.resize(1);
+  r.trials[0].calibration_uncertainty = "declared: the calibration was not checked";
+  EXPECT_NE(session_report_html(r).find("Impact velocity intervals: declared: the calibration was not checked."),
+            std::string::npos);
+  r.trials[0].calibration_uncertainty = "check markers";
+  EXPECT_EQ(session_report_html(r).find("Impact velocity intervals:"), std::string::npos);
 }

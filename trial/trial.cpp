@@ -290,7 +290,12 @@ FreeFallFit free_fall_before(const Eigen::VectorXd& h, int crossing, const Video
   if (ff.ok) {
     res.impact_velocity_m_s = ff.contact_speed_m_s;
     res.impact_velocity_ci_m_s = ff.contact_speed_ci_m_s;
+    res.impact_velocity_se_m_s = ff.contact_speed_se_m_s;
     res.video_contact_time_s = ff.contact_time_s;
+    res.velocity_contact_time_cov = ff.speed_time_cov;
+    // The contact height's own error moves the arrival by dH / v.
+    const double dh = std::isfinite(res.contact_height_se_m) ? res.contact_height_se_m / ff.contact_speed_m_s : 0.0;
+    res.video_contact_time_se_s = std::hypot(ff.contact_time_se_s, dh);
     res.freefall_rms_m = ff.rms_m;
   }
   return ff;
@@ -581,19 +586,25 @@ void impulse_checks(const forceplate::ForceTrial& force, const TrialOptions& o, 
 // the frames where every one is seen, before the face first comes within
 // 20 mm of the surveyed top (after the rebound the mat may still be
 // recovering); NaN when fewer than min_rest_frames such frames (see the
-// header: contact height).
-double surface_rest_height_m(const Eigen::VectorXd& h, const Eigen::VectorXd& surf, const TrialOptions& o) {
+// header: contact height). `se_m`: the mean's standard error (the frames'
+// scatter over sqrt(n)).
+double surface_rest_height_m(const Eigen::VectorXd& h, const Eigen::VectorXd& surf, const TrialOptions& o,
+                             double* se_m) {
   constexpr double kClear_m = 0.020;
-  double sum = 0.0;
+  double sum = 0.0, sum2 = 0.0;
   int n = 0;
   for (Eigen::Index i = 0; i < surf.size() && i < h.size(); ++i) {
     if (std::isfinite(h[i]) && h[i] < o.mat_top_z_m + kClear_m) break;  // the approach: at rest only before it
     if (std::isfinite(surf[i])) {
       sum += surf[i];
+      sum2 += surf[i] * surf[i];
       ++n;
     }
   }
-  return n < o.min_rest_frames ? kNaN : sum / n;
+  if (n < o.min_rest_frames) return kNaN;
+  const double rest = sum / n;
+  *se_m = std::sqrt(std::max(sum2 / n - rest * rest, 0.0) / std::max(n - 1, 1));
+  return rest;
 }
 
 TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string& force_error,
@@ -611,8 +622,12 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
   const Eigen::VectorXd surf = mean_height(markers, given.surface_markers, 0.0);
   // Everything below measures from the contact height.
   TrialOptions o = given;
-  const double rest = surface_rest_height_m(h, surf, given);
-  if (std::abs(rest - given.mat_top_z_m) <= given.max_surface_reference_m) o.mat_top_z_m = rest;
+  double rest_se_m = kNaN;
+  const double rest = surface_rest_height_m(h, surf, given, &rest_se_m);
+  if (std::abs(rest - given.mat_top_z_m) <= given.max_surface_reference_m) {
+    o.mat_top_z_m = rest;
+    res.contact_height_se_m = rest_se_m;
+  }
   if (std::abs(rest - given.mat_top_z_m) > given.max_surface_disagreement_m) {
     reasons.push_back(fmt::format(
         "the cameras see the mat top (the surface markers at rest) at z = {:.4f} m, {:+.1f} mm from the declared "
@@ -806,6 +821,13 @@ FreeFallFit fit_free_fall(const Eigen::VectorXd& t_s, const Eigen::VectorXd& z_m
   const Eigen::Vector2d grad(gravity_m_s2 / s, v0 / s);
   const double var = grad.dot(out.covariance * grad);
   out.contact_speed_ci_m_s = student_t_quantile(0.975, used - 2) * std::sqrt(std::max(var, 0.0));
+  // The arrival tau solves z0 + v0 tau - g tau^2 / 2 = H where the face
+  // descends at s: d tau / d z0 = 1 / s, d tau / d v0 = tau / s.
+  const double arrival = out.contact_time_s - t_ref_s;
+  const Eigen::Vector2d grad_t(1.0 / s, arrival / s);
+  out.contact_speed_se_m_s = std::sqrt(std::max(var, 0.0));
+  out.contact_time_se_s = std::sqrt(std::max(grad_t.dot(out.covariance * grad_t), 0.0));
+  out.speed_time_cov = grad.dot(out.covariance * grad_t);
   out.ok = true;
   return out;
 }
@@ -908,9 +930,30 @@ void apply_calibration_gates(TrialResult& result, const reconstruction::Trajecto
 }
 
 void add_calibration_uncertainty(TrialResult& result, const CalibrationQuality& quality) {
-  if (!std::isfinite(quality.vertical_scale_sd) || !std::isfinite(result.impact_velocity_ci_m_s)) return;
+  const bool checked = std::isfinite(quality.vertical_scale_sd);
+  if (!checked && !quality.declared_term) {
+    // No camera calibration measured these positions: no term, and said so.
+    result.calibration_uncertainty =
+        fmt::format("none: {}; the interval is the free-fall fit's alone", quality.unchecked_reason);
+    return;
+  }
+  const double sd = checked ? quality.vertical_scale_sd : kDeclaredCalibrationScaleSd;
+  result.calibration_scale_sd = sd;
+  result.calibration_uncertainty =
+      checked ? "check markers"
+              : fmt::format("declared: {}, so its vertical scale is taken as accurate to {:.2g} %",
+                            quality.unchecked_reason, 100.0 * sd);
+  // Travel measured from the manifest's mat top (no surface reference): the
+  // calibration's error at that height.
+  if (!std::isfinite(result.contact_height_se_m) && std::isfinite(result.contact_height_m)) {
+    result.contact_height_se_m = sd * std::abs(result.contact_height_m);
+    if (std::isfinite(result.video_contact_time_se_s) && result.impact_velocity_m_s > 0.0)
+      result.video_contact_time_se_s =
+          std::hypot(result.video_contact_time_se_s, result.contact_height_se_m / result.impact_velocity_m_s);
+  }
+  if (!std::isfinite(result.impact_velocity_ci_m_s)) return;
   result.impact_velocity_ci_m_s =
-      std::hypot(result.impact_velocity_ci_m_s, 1.96 * std::abs(result.impact_velocity_m_s) * quality.vertical_scale_sd);
+      std::hypot(result.impact_velocity_ci_m_s, 1.96 * std::abs(result.impact_velocity_m_s) * sd);
 }
 
 std::string TrialResult::report() const {

@@ -189,6 +189,13 @@ struct FreeFallFit {
   double contact_time_s = std::numeric_limits<double>::quiet_NaN();  // reaches the contact height
   double contact_speed_m_s = std::numeric_limits<double>::quiet_NaN();  // downward
   double contact_speed_ci_m_s = std::numeric_limits<double>::quiet_NaN();  // 95 % half-width
+  // One-sigma errors of the fit's contact speed and instant (the fit's
+  // covariance carried through the arrival at the contact height; the
+  // height itself exact) and their covariance: both come from the same two
+  // fitted numbers, so a trial's speed and contact instant err together.
+  double contact_speed_se_m_s = std::numeric_limits<double>::quiet_NaN();
+  double contact_time_se_s = std::numeric_limits<double>::quiet_NaN();
+  double speed_time_cov = std::numeric_limits<double>::quiet_NaN();  // m/s x s
   double height_at(double t_s, double gravity_m_s2) const;
 };
 
@@ -247,6 +254,28 @@ struct TrialResult {
   double video_offset_se_s = std::numeric_limits<double>::quiet_NaN();
   double video_offset_onset_s = std::numeric_limits<double>::quiet_NaN();
 
+  // The error budget of the video's measurements (one sigma; the fit
+  // carries them as nuisance parameters with these priors):
+  // - impact_velocity_se_m_s: the free-fall fit's alone (digitising noise);
+  // - video_contact_time_se_s: the video contact instant's, from the
+  //   free-fall fit and the contact height's own error (a height error dH
+  //   moves the arrival by dH / v);
+  // - velocity_contact_time_cov: the covariance of the two (the same fit);
+  // - contact_height_se_m: the error of the height travel is measured from:
+  //   the surface markers' rest mean's standard error, or, on the manifest's
+  //   mat top, the calibration's vertical accuracy at that height;
+  // - calibration_scale_sd: the relative error of lengths along z (common to
+  //   every trial of the session: velocity, travel and deformation scale
+  //   with it), and calibration_uncertainty the source of that number
+  //   ("check markers", or "declared: ..." when the calibration could not be
+  //   checked, e.g. coefficients given without check markers).
+  double impact_velocity_se_m_s = std::numeric_limits<double>::quiet_NaN();
+  double video_contact_time_se_s = std::numeric_limits<double>::quiet_NaN();
+  double velocity_contact_time_cov = std::numeric_limits<double>::quiet_NaN();
+  double contact_height_se_m = std::numeric_limits<double>::quiet_NaN();
+  double calibration_scale_sd = std::numeric_limits<double>::quiet_NaN();
+  std::string calibration_uncertainty;
+
   // Beyond trial.json's minimum.
   double video_offset_trajectory_s = std::numeric_limits<double>::quiet_NaN();  // second estimate
   double video_contact_time_s = std::numeric_limits<double>::quiet_NaN();       // video clock
@@ -304,6 +333,12 @@ struct CalibrationQuality {
   double check_rms_m = std::numeric_limits<double>::quiet_NaN();   // 3-D (norm of the per-axis RMS)
   double vertical_scale_sd = std::numeric_limits<double>::quiet_NaN();
   std::string problem;
+  // Why vertical_scale_sd could not be measured (said with the declared
+  // term), and whether the declared term applies (false: positions that no
+  // camera calibration of the session measured, e.g. a motion-capture
+  // system's markers.c3d; the interval is then the free-fall fit's, said so).
+  std::string unchecked_reason = "the calibration was not checked (no check markers spanning a height)";
+  bool declared_term = true;
 };
 constexpr double kMaxCalibrationFitRmsPx = 10.0;
 constexpr double kMaxCalibrationCheckRmsM = 0.010;
@@ -313,9 +348,17 @@ CalibrationQuality calibration_quality(const calibration::CalibrationResult& cal
 
 // Widens the impact velocity's 95 % interval (the free-fall fit's, which
 // sees only the digitising noise) by the calibration's vertical scale
-// uncertainty: half-width = sqrt(fit^2 + (1.96 v vertical_scale_sd)^2);
-// unchanged when that is NaN. On 433 trials of 87 independent sessions the
-// fit's interval alone covered the true velocity in 74 %, this one in 96 %.
+// uncertainty: half-width = sqrt(fit^2 + (1.96 v scale_sd)^2). On 433
+// trials of 87 independent sessions the fit's interval alone covered the
+// true velocity in 74 %, this one in 96 %. scale_sd is the check markers'
+// vertical_scale_sd; a calibration that was not checked (coefficients
+// given without check markers, or check markers spanning no height) has
+// no measured one, and the term is not dropped: it is the declared
+// kDeclaredCalibrationScaleSd, and result.calibration_uncertainty says so.
+// Also sets result.calibration_scale_sd, and contact_height_se_m where the
+// contact height is the manifest's (the calibration's error at that height,
+// scale_sd over the height).
+constexpr double kDeclaredCalibrationScaleSd = 1e-3;
 void add_calibration_uncertainty(TrialResult& result, const CalibrationQuality& quality);
 
 // Rejects `result` (adding the reason) when the calibration failed its own

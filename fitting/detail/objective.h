@@ -73,6 +73,10 @@ double profile_shift(const Prepared& p, const std::vector<double>& grf);
 detail::Trace<double> simulate_window(const Prepared& p, const ParamSpace& space, const FitOptions& o,
                                       const MatParams& mp, std::atomic<long>* evals);
 
+// One trial's weighted residuals (force, then travel) from a simulated
+// window at the given clock shift (doubles); `out` holds p.n_residuals().
+void residuals_at(const Prepared& p, const detail::Trace<double>& tr, double shift, double* out);
+
 // Residual vector (doubles) over the prepared trials, shifts profiled.
 Eigen::VectorXd residual_vector(const std::vector<Prepared>& preps, const ParamSpace& space, const FitOptions& o,
                                 const MatParams& mp, std::atomic<long>* evals, std::vector<double>* shifts = nullptr);
