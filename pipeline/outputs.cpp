@@ -95,14 +95,8 @@ void add_model6_outputs(report::OutputSet& out, const std::string& prefix, const
   add_series(out, prefix, m6.fit->trials, state);
 }
 
-fitting::FitResult model6_as_fit(const fitting::Model6FitResult& fit) {
-  fitting::FitResult f;
-  f.train_ids = fit.train_ids;
-  f.estimates = fit.estimates;
-  f.trials = fit.trials;
-  f.cost = fit.cost;
-  f.n_residuals = fit.n_residuals;
-  f.seconds = fit.seconds;
+fitting::FitResult model6_headline_fit(const fitting::Model6FitResult& fit) {
+  fitting::FitResult f = report::model6_as_fit(fit);
   for (const auto& e : fit.estimates)
     if (e.at_bound) f.warnings.push_back(e.name + " sits at the bound of its search range: the bound, not the data, sets it");
   return f;
@@ -160,7 +154,7 @@ void add_run_outputs(report::OutputSet& out, const SessionState& state) {
   rep.fit_data = state.fit_data;
   rep.fits = state.fits;
   if (const fitting::Model6FitResult* m6 = state.final_model6()) {
-    rep.final_fit = model6_as_fit(*m6);
+    rep.final_fit = model6_headline_fit(*m6);
     rep.final_label = "model6";
     rep.final_note = state.model6->reason + ". " + report::kModel6NoMjcf + ".";
   } else if (final_fit) {

@@ -43,7 +43,7 @@ void add_fit_outputs(report::OutputSet& out, const std::string& prefix, const fi
 void add_model6_outputs(report::OutputSet& out, const std::string& prefix, const SessionState& state);
 // A Model 6 fit as the report's headline takes a fit (training trials,
 // estimates, trial reports, bound warnings; no Model 1-5 parameters).
-fitting::FitResult model6_as_fit(const fitting::Model6FitResult& fit);
+fitting::FitResult model6_headline_fit(const fitting::Model6FitResult& fit);
 
 // The mat's layers as the MJCF export takes them (top = all but the last).
 report::MatGeometry mat_geometry(const Manifest& manifest);

@@ -37,9 +37,7 @@ std::vector<std::pair<std::string, double>> model6_parameters(const fitting::Mod
   return out;
 }
 
-std::string model6_fit_json(const fitting::Model6FitResult& fit, const fitting::Model6FitOptions& options,
-                            double impactor_mass_kg, const Model6Choice& choice, const std::string& label) {
-  // The fields Model 6 shares with Models 1-5, written by fit_json.
+fitting::FitResult model6_as_fit(const fitting::Model6FitResult& fit) {
   fitting::FitResult shared;
   shared.train_ids = fit.train_ids;
   shared.estimates = fit.estimates;
@@ -51,6 +49,13 @@ std::string model6_fit_json(const fitting::Model6FitResult& fit, const fitting::
   shared.evaluations = fit.iterations;
   shared.channels = {{"force", 0, 0.0, fit.force_rms_sigma, 0.0, fit.force_rms_sigma > 2.0},
                      {"impactor", 0, 0.0, fit.impactor_rms_sigma, 0.0, fit.impactor_rms_sigma > 2.0}};
+  return shared;
+}
+
+std::string model6_fit_json(const fitting::Model6FitResult& fit, const fitting::Model6FitOptions& options,
+                            double impactor_mass_kg, const Model6Choice& choice, const std::string& label) {
+  // The fields Model 6 shares with Models 1-5, written by fit_json.
+  const fitting::FitResult shared = model6_as_fit(fit);
   nlohmann::ordered_json doc = nlohmann::ordered_json::parse(fit_json(shared, impactor_mass_kg, label));
   doc["model"] = "model6";
   nlohmann::ordered_json params = nlohmann::ordered_json::object();

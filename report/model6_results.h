@@ -27,6 +27,11 @@ extern const char* const kModel6NoMjcf;
 // The canonical parameters, named with units (fit.json's "parameters").
 std::vector<std::pair<std::string, double>> model6_parameters(const fitting::Model6Params& params);
 
+// The fields a Model 6 fit shares with Models 1-5 (training trials,
+// estimates, trial reports, cost, training RMS per channel) in a FitResult,
+// as fit_json and the report's headline take a fit.
+fitting::FitResult model6_as_fit(const fitting::Model6FitResult& fit);
+
 std::string model6_fit_json(const fitting::Model6FitResult& fit, const fitting::Model6FitOptions& options,
                             double impactor_mass_kg, const Model6Choice& choice, const std::string& label = "model6");
 
