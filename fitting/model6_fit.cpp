@@ -403,12 +403,12 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   double u[kFree], lo[kFree], hi[kFree];
   start_and_bounds(peak / options.geometry.area_m2, u, lo, hi);
   // The clock shifts start at the contact estimate and are held in a first
-  // stage, each re-profiled for the current parameters every
-  // stage_iterations: freed from a generic start, they ran to their bound
-  // on the generator's foams (the force matched 3 ms early, the travel 6-8
-  // mm deep) instead of the mat moving to its basin; held at the contact
-  // estimate throughout the stage, which reads the column's onset lag, the
-  // mat moved to a wrong basin when that lag was large.
+  // stage: freed from a generic start, they ran to their bound on the
+  // generator's foams (the force matched 3 ms early, the travel 6-8 mm
+  // deep) instead of the mat moving to its basin. Held at the contact
+  // estimate, which reads the column's onset lag, the mat can move to a
+  // wrong basin when that lag is large; re-profiled between rounds, it can
+  // too on another foam: both are run (below).
   std::vector<double> shifts(train.size(), 0.0);
   ceres::Problem problem;
   int n_res = 0;
@@ -430,6 +430,18 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   ceres::Solver::Summary summary;
   for (double& sh : shifts) problem.SetParameterBlockConstant(&sh);
   long iterations = 0;
+  // First the shifts held at the estimate throughout (stage_rounds x
+  // stage_iterations), then from the same start re-profiled between
+  // rounds; the second stage goes on from the lower cost of the two.
+  double u0[kFree];
+  std::copy(u, u + kFree, u0);
+  so.max_num_iterations = options.stage_rounds * options.stage_iterations;
+  ceres::Solve(so, &problem, &summary);
+  iterations += static_cast<long>(summary.iterations.size());
+  double held_u[kFree];
+  std::copy(u, u + kFree, held_u);
+  const double held_cost = summary.final_cost;
+  std::copy(u0, u0 + kFree, u);
   so.max_num_iterations = options.stage_iterations;
   for (int round = 0; round < options.stage_rounds; ++round) {
     ceres::Solve(so, &problem, &summary);
@@ -444,6 +456,12 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
       }
       shifts[k] = profile_shift(windows[k], grf, options.contact_shift_min_s, options.contact_shift_max_s);
     }
+  }
+  double profiled_cost = 0.0;
+  problem.Evaluate(ceres::Problem::EvaluateOptions{}, &profiled_cost, nullptr, nullptr, nullptr);
+  if (held_cost < profiled_cost) {
+    std::copy(held_u, held_u + kFree, u);
+    std::fill(shifts.begin(), shifts.end(), 0.0);
   }
   for (double& sh : shifts) problem.SetParameterBlockVariable(&sh);
   so.max_num_iterations = options.max_iterations;

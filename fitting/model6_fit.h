@@ -53,14 +53,14 @@ struct Model6FitOptions {
   double contact_shift_min_s = -3e-3;  // dt_c in [min, max]
   double contact_shift_max_s = 1e-3;
   int oversample = 2;                // simulated samples per plate sample
-  int max_iterations = 30;
+  int max_iterations = 60;
   // The first stage (clock shifts held, re-profiled between rounds): rounds
   // of stage_iterations each.
   int stage_rounds = 4;
   int stage_iterations = 10;
   // The second stage stops when an iteration lowers the cost by less than
   // this share (Ceres' function tolerance).
-  double function_tolerance = 1e-5;
+  double function_tolerance = 1e-6;
 };
 
 struct Model6FitResult {

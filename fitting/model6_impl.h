@@ -8,8 +8,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <memory>
-#include <type_traits>
 #include <vector>
 
 #include "core/error.h"
@@ -118,23 +116,12 @@ void check(const Model6ParamsT<T>& p) {
   require(ok, "model6: a foam law needs positive moduli, plateau and masses, e_d in (0, 1], n >= 1, g >= 0, tau > 0");
 }
 
-template <typename T>
-FoamLawT<double> value_law(const FoamLawT<T>& l) {
-  return {val(l.plateau_pa),       val(l.modulus_pa),           val(l.hardening_pa),
-          val(l.densification_pa), val(l.densification_strain), val(l.densification_exponent)};
-}
-template <typename T>
-Model6ParamsT<double> value_params(const Model6ParamsT<T>& p) {
-  return {value_law(p.top),      value_law(p.base),    val(p.prony_g1),       val(p.prony_tau1_s), val(p.prony_g2),
-          val(p.prony_tau2_s),   val(p.viscosity_pa_s), val(p.top_mass_kg), val(p.base_mass_kg)};
-}
-
 // The column's state and the implicit step.
 template <typename T>
 class Column {
  public:
   Column(const Model6ParamsT<T>& p, const Model6Geometry& g, const Impact& imp)
-      : imp_(imp), geometry_(g), values_(value_params(p)), area_(g.area_m2) {
+      : imp_(imp), area_(g.area_m2) {
     const int nt = g.n_top, nb = g.base_thickness_m > 0.0 ? g.n_base : 0;
     n_ = nt + nb;
     n_top_ = nt;
@@ -177,9 +164,6 @@ class Column {
   bool step(double dt);
 
  private:
-  template <typename U>
-  friend class Column;
-  Model6ParamsT<double> values() const;
   void newton(double dt);            // the step's node travels un_ (from their start in un_)
   void finish_step(double dt);       // the state at the step's end from un_
   bool advance_contact(double dt);   // the contact's change; false when it changed
@@ -197,9 +181,6 @@ class Column {
                         std::vector<T>* sigma, std::vector<T>* stiff) const;
 
   Impact imp_;
-  Model6Geometry geometry_;
-  Model6ParamsT<double> values_;  // the parameters' values (the shadow column's)
-  std::unique_ptr<Column<double>> shadow_;
   double area_;
   int n_ = 0, n_top_ = 0;
   std::vector<FoamLawT<T>> law_;
@@ -214,11 +195,6 @@ class Column {
   mutable double prony_dt_ = -1.0;
   mutable T e1_, e2_, b1_, b2_;
 };
-
-template <typename T>
-Model6ParamsT<double> Column<T>::values() const {
-  return values_;
-}
 
 template <typename T>
 void Column<T>::static_state() {
@@ -279,22 +255,6 @@ template <typename T>
 bool Column<T>::step(double dt) {
   // Newton on the node travels at the step's end; start: constant acceleration.
   for (int j = 0; j < n_; ++j) un_[j] = u_[j] + T(dt) * v_[j] + T(0.25 * dt * dt) * a_[j];
-  if constexpr (!std::is_same_v<T, double>) {
-    // Jets: Newton's iterations on the values alone (the shadow column in
-    // doubles, in this column's state), then one Newton step in Jets from
-    // the converged values, which carries the exact derivatives of the
-    // step's solution (implicit function theorem).
-    if (!shadow_) shadow_ = std::make_unique<Column<double>>(values(), geometry_, imp_);
-    Column<double>& c = *shadow_;
-    for (int j = 0; j < n_; ++j) {
-      c.u_[j] = val(u_[j]), c.v_[j] = val(v_[j]), c.a_[j] = val(a_[j]);
-      c.q1_[j] = val(q1_[j]), c.q2_[j] = val(q2_[j]), c.se_[j] = val(se_[j]);
-      c.un_[j] = val(un_[j]);
-    }
-    c.contact_ = contact_;
-    c.newton(dt);
-    for (int j = 0; j < n_; ++j) un_[j].a = c.un_[j];
-  }
   newton(dt);
   finish_step(dt);
   return advance_contact(dt);
