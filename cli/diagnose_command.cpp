@@ -29,7 +29,10 @@ void add_diagnose(CLI::App& app, CommandContext& /*ctx*/) {
     if (!state.loop) throw dropfit::Error(fmt::format("{}: the loop could not run (see the notes above)", args->session));
     report::OutputSet out;
     out.add("diagnosis.json", diagnosis::diagnosis_json(*state.loop));
-    if (const auto* fit = state.final_fit()) pipeline::add_fit_outputs(out, "", *fit, state, state.final_label());
+    if (state.final_model6())
+      pipeline::add_model6_outputs(out, "", state);
+    else if (const auto* fit = state.final_fit())
+      pipeline::add_fit_outputs(out, "", *fit, state, state.final_label());
     out.commit(args->out, {args->session});
     fmt::print("{}", state.loop->report());
     fmt::print("wrote {}/diagnosis.json\n", args->out);

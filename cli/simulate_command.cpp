@@ -1,7 +1,8 @@
 // dropfit simulate --params fit.json --velocity V [--mass M] [--duration S]
 //                  [--dt S] [--first-output S] [--gravity G] [--out FILE]
-// The force-time curve of any impact with fitted parameters: what a
-// simulator author checks first. Samples at t = first_output + i dt from
+// The force-time curve of any impact with fitted parameters (Models 1-5,
+// or Model 6 with the column its fit.json describes): what a simulator
+// author checks first. Samples at t = first_output + i dt from
 // first contact; a fit's series/<trial>.csv is sampled on the trial's own
 // plate clock, whose first sample after contact falls at its t_s[0] (in
 // [0, dt)): pass that as --first-output (with the trial's dt and the
@@ -15,6 +16,7 @@
 #include "pipeline/pipeline.h"
 #include "core/error.h"
 #include "report/export.h"
+#include "report/model6_results.h"
 #include "report/output.h"
 #include "report/results.h"
 
@@ -51,15 +53,19 @@ void add_simulate(CLI::App& app, CommandContext& /*ctx*/) {
     if (!in) throw InputError(args->params, 0, 0, "", "cannot open");
     std::stringstream text;
     text << in.rdbuf();
-    const report::FitFile fit = report::parse_fit_json(text.str(), args->params);
+    const bool model6 = report::is_model6_fit_json(text.str());
+    const report::FitFile fit = model6 ? report::FitFile{} : report::parse_fit_json(text.str(), args->params);
+    const report::Model6FitFile fit6 =
+        model6 ? report::parse_model6_fit_json(text.str(), args->params) : report::Model6FitFile{};
     fitting::Impact impact;
-    impact.mass_kg = args->mass_kg > 0.0 ? args->mass_kg : fit.impactor_mass_kg;
+    impact.mass_kg = args->mass_kg > 0.0 ? args->mass_kg : model6 ? fit6.impactor_mass_kg : fit.impactor_mass_kg;
     impact.velocity_m_s = args->velocity_m_s;
     impact.duration_s = args->duration_s;
     impact.output_dt_s = args->dt_s;
     impact.first_output_s = args->first_output_s;
     impact.gravity_m_s2 = args->gravity_m_s2;
-    const fitting::Simulation sim = pipeline::simulate_fitted(fit.model, fit.params, impact);
+    const fitting::Simulation sim = model6 ? pipeline::simulate_fitted(fit6.params, fit6.geometry, impact)
+                                           : pipeline::simulate_fitted(fit.model, fit.params, impact);
     const std::string csv = report::simulation_csv(sim);
     if (args->out.empty()) {
       fmt::print("{}", csv);

@@ -1,6 +1,7 @@
 // Fitting Model 6, the foam column (fitting/model6_fit.h).
 #include "fitting/model6_fit.h"
 
+#include <Eigen/Eigenvalues>
 #include <ceres/ceres.h>
 #include <fmt/format.h>
 
@@ -8,6 +9,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <thread>
 
 #include "core/error.h"
 #include "fitting/model6_impl.h"
@@ -159,6 +161,52 @@ struct TrialCost {
   }
 };
 
+// TrialCost with its derivatives: the 15 columns (14 parameters, the clock
+// shift) in two passes of 8-wide Jets through the simulation, run on two
+// threads (each pass is a whole simulation; the residuals alone are one
+// simulation in doubles).
+class TrialCostFunction : public ceres::CostFunction {
+ public:
+  TrialCostFunction(const Window* w, const Model6FitOptions* o) : cost_{w, o} {
+    mutable_parameter_block_sizes()->push_back(kFree);
+    mutable_parameter_block_sizes()->push_back(1);
+    set_num_residuals(w->n_residuals());
+  }
+  bool Evaluate(double const* const* p, double* r, double** jac) const override {
+    if (!jac) return cost_(p, r);
+    using J = ceres::Jet<double, 8>;
+    const int nr = num_residuals();
+    bool ok[2] = {false, false};
+    auto pass = [&](int k) {
+      J u[kFree], shift(p[1][0]);
+      for (int i = 0; i < kFree; ++i) {
+        u[i] = J(p[0][i]);
+        if (i / 8 == k) u[i].v[i % 8] = 1.0;
+      }
+      if (k == 1) shift.v[kFree - 8] = 1.0;
+      std::vector<J> out(nr);
+      const J* blocks[2] = {u, &shift};
+      ok[k] = cost_(blocks, out.data());
+      if (!ok[k]) return;
+      for (int i = 0; i < nr; ++i) {
+        if (k == 0 && r) r[i] = out[i].a;
+        for (int d = 0; d < 8; ++d) {
+          const int col = 8 * k + d;
+          if (col < kFree && jac[0]) jac[0][i * kFree + col] = out[i].v[d];
+          if (col == kFree && jac[1]) jac[1][i] = out[i].v[d];
+        }
+      }
+    };
+    std::thread second(pass, 1);
+    pass(0);
+    second.join();
+    return ok[0] && ok[1];
+  }
+
+ private:
+  TrialCost cost_;
+};
+
 std::vector<const TrialData*> training(const std::vector<TrialData>& trials, const std::vector<std::string>& ids) {
   std::vector<const TrialData*> out;
   if (ids.empty()) {
@@ -226,6 +274,60 @@ double profile_shift(const Window& w, const std::vector<double>& grf, double min
   return 0.5 * (a + b);
 }
 
+// The shift's standard error from the curvature of the force residual's
+// sum of squares (noise units) at the optimum, with the residual's RMS
+// over the noise as its scale when it exceeds 1 (a misfit of the trial
+// counts as noise, so a model short of the noise gives a wider interval)
+// and the AR(1) factor sqrt((1 + rho) / (1 - rho)) of its lag-1
+// autocorrelation rho (a smooth misfit is fewer independent samples).
+double shift_se(const Window& w, const std::vector<double>& grf, double shift) {
+  const double d = 2e-5;
+  const double s0 = force_ss(w, grf, shift);
+  const double curv = (force_ss(w, grf, shift + d) - 2.0 * s0 + force_ss(w, grf, shift - d)) / (d * d);
+  if (!(curv > 0.0) || w.f_idx.size() < 3) return kNaN;
+  std::vector<double> r;
+  for (int i : w.f_idx) r.push_back((at(grf, w.data->t_s[i] - shift, w.h) - w.data->grf_n[i]) * w.f_w);
+  double lag = 0.0;
+  for (size_t i = 0; i + 1 < r.size(); ++i) lag += r[i] * r[i + 1];
+  const double rho = std::clamp(lag / std::max(s0, 1e-300), 0.0, 0.98);
+  const double rms = std::sqrt(s0 / static_cast<double>(r.size()));
+  return std::sqrt(2.0 / curv) * std::max(1.0, rms) * std::sqrt((1.0 + rho) / (1.0 - rho));
+}
+
+// The standard errors of the first kFree parameters (the logarithms) from
+// (J^T J)^-1 over every parameter block (the clock shifts included), scaled
+// by the residual variance when the fit is short of the noise (2 cost /
+// (n - p) above 1). NaN where J^T J is singular in that direction.
+Eigen::VectorXd log_standard_errors(ceres::Problem& problem, double cost, int n_residuals) {
+  Eigen::VectorXd se = Eigen::VectorXd::Constant(kFree, kNaN);
+  ceres::CRSMatrix crs;
+  double c = 0.0;
+  if (!problem.Evaluate(ceres::Problem::EvaluateOptions{}, &c, nullptr, nullptr, &crs)) return se;
+  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(crs.num_rows, crs.num_cols);
+  for (int r = 0; r < crs.num_rows; ++r)
+    for (int k = crs.rows[r]; k < crs.rows[r + 1]; ++k) J(r, crs.cols[k]) = crs.values[k];
+  const Eigen::MatrixXd JtJ = J.transpose() * J;
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(JtJ);
+  const Eigen::VectorXd& lam = eig.eigenvalues();
+  const double floor = 1e-12 * std::max(lam.maxCoeff(), 1e-300);
+  const int p = static_cast<int>(JtJ.rows());
+  const double s2 = std::max(1.0, 2.0 * cost / std::max(1, n_residuals - p));
+  for (int i = 0; i < kFree && i < p; ++i) {
+    double v = 0.0;
+    bool ok = true;
+    for (int k = 0; k < p; ++k) {
+      const double q = eig.eigenvectors()(i, k);
+      if (lam[k] <= floor) {
+        if (std::abs(q) > 1e-6) ok = false;
+        continue;
+      }
+      v += q * q / lam[k];
+    }
+    if (ok) se[i] = std::sqrt(s2 * v);
+  }
+  return se;
+}
+
 }  // namespace
 
 TrialReport predict_model6(const TrialData& trial, const Model6Params& params, const Model6FitOptions& options) {
@@ -243,6 +345,7 @@ TrialReport predict_model6(const TrialData& trial, const Model6Params& params, c
   rep.window_end_s = w.end_s;
   const double shift = profile_shift(w, grf, options.contact_shift_min_s, options.contact_shift_max_s);
   rep.contact_shift_s = shift;
+  rep.contact_shift_se_s = shift_se(w, grf, shift);
   Simulation& sim = rep.simulation;
   sim.t_s = trial.t_s;
   for (Eigen::VectorXd* v : {&sim.grf_n, &sim.impactor_m, &sim.surface_m, &sim.layer1_m, &sim.layer2_m}) v->setZero(n);
@@ -299,18 +402,18 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   }
   double u[kFree], lo[kFree], hi[kFree];
   start_and_bounds(peak / options.geometry.area_m2, u, lo, hi);
-  // The clock shifts start at the contact estimate and are held there in a
-  // first stage: freed from a generic start, they ran to their bound on
-  // the generator's foams (the force matched 3 ms early, the travel 6-8 mm
-  // deep) instead of the mat moving to its basin.
+  // The clock shifts start at the contact estimate and are held in a first
+  // stage: freed from a generic start, they ran to their bound on the
+  // generator's foams (the force matched 3 ms early, the travel 6-8 mm
+  // deep) instead of the mat moving to its basin. Held at the contact
+  // estimate, which reads the column's onset lag, the mat can move to a
+  // wrong basin when that lag is large; re-profiled between rounds, it can
+  // too on another foam: both are run (below).
   std::vector<double> shifts(train.size(), 0.0);
   ceres::Problem problem;
   int n_res = 0;
   for (size_t k = 0; k < windows.size(); ++k) {
-    auto* cf = new ceres::DynamicAutoDiffCostFunction<TrialCost, 8>(new TrialCost{&windows[k], &options});
-    cf->AddParameterBlock(kFree);
-    cf->AddParameterBlock(1);
-    cf->SetNumResiduals(windows[k].n_residuals());
+    auto* cf = new TrialCostFunction(&windows[k], &options);
     n_res += windows[k].n_residuals();
     problem.AddResidualBlock(cf, nullptr, u, &shifts[k]);
     problem.SetParameterLowerBound(&shifts[k], 0, options.contact_shift_min_s);
@@ -326,11 +429,43 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   so.logging_type = ceres::SILENT;
   ceres::Solver::Summary summary;
   for (double& sh : shifts) problem.SetParameterBlockConstant(&sh);
-  so.max_num_iterations = std::min(options.max_iterations, 40);
+  long iterations = 0;
+  // First the shifts held at the estimate throughout (stage_rounds x
+  // stage_iterations), then from the same start re-profiled between
+  // rounds; the second stage goes on from the lower cost of the two.
+  double u0[kFree];
+  std::copy(u, u + kFree, u0);
+  so.max_num_iterations = options.stage_rounds * options.stage_iterations;
   ceres::Solve(so, &problem, &summary);
-  long iterations = static_cast<long>(summary.iterations.size());
+  iterations += static_cast<long>(summary.iterations.size());
+  double held_u[kFree];
+  std::copy(u, u + kFree, held_u);
+  const double held_cost = summary.final_cost;
+  std::copy(u0, u0 + kFree, u);
+  so.max_num_iterations = options.stage_iterations;
+  for (int round = 0; round < options.stage_rounds; ++round) {
+    ceres::Solve(so, &problem, &summary);
+    iterations += static_cast<long>(summary.iterations.size());
+    const Model6ParamsT<double> p = model6_params_t<double>(to_params(u, options));
+    for (size_t k = 0; k < windows.size(); ++k) {
+      std::vector<double> grf;
+      try {
+        simulate_model6_t<double>(p, options.geometry, windows[k].impact, windows[k].n_grid, &grf, nullptr);
+      } catch (const Error&) {
+        continue;
+      }
+      shifts[k] = profile_shift(windows[k], grf, options.contact_shift_min_s, options.contact_shift_max_s);
+    }
+  }
+  double profiled_cost = 0.0;
+  problem.Evaluate(ceres::Problem::EvaluateOptions{}, &profiled_cost, nullptr, nullptr, nullptr);
+  if (held_cost < profiled_cost) {
+    std::copy(held_u, held_u + kFree, u);
+    std::fill(shifts.begin(), shifts.end(), 0.0);
+  }
   for (double& sh : shifts) problem.SetParameterBlockVariable(&sh);
   so.max_num_iterations = options.max_iterations;
+  so.function_tolerance = options.function_tolerance;
   ceres::Solve(so, &problem, &summary);
   iterations += static_cast<long>(summary.iterations.size());
 
@@ -340,11 +475,16 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   res.cost = summary.final_cost;
   res.n_residuals = n_res;
   res.iterations = iterations;
+  const Eigen::VectorXd log_se = log_standard_errors(problem, summary.final_cost, n_res);
   for (int i = 0; i < kFree; ++i) {
     ParameterEstimate e;
     e.name = free_names()[i];
     e.value = std::exp(u[i]);
     e.at_bound = u[i] - lo[i] < 1e-3 * (hi[i] - lo[i]) || hi[i] - u[i] < 1e-3 * (hi[i] - lo[i]);
+    // Delta method on the logarithm: se = value x se(log value).
+    e.se = e.value * log_se[i];
+    e.rel_se = log_se[i];
+    e.identifiable = std::isfinite(log_se[i]) && log_se[i] < 1.0;
     res.estimates.push_back(e);
   }
   // Per channel, the training residual's RMS in noise units.

@@ -57,10 +57,18 @@ double val(const ceres::Jet<S, N>& x) {
   return x.a;
 }
 
+// r^n; a constant exponent (the fitter's) through the scalar power, and
+// n = 2 as a product.
+inline double power(double r, double n) { return n == 2.0 ? r * r : std::pow(r, n); }
+template <typename S, int N>
+ceres::Jet<S, N> power(const ceres::Jet<S, N>& r, const ceres::Jet<S, N>& n) {
+  if (!n.v.isZero()) return pow(r, n);
+  return n.a == 2.0 ? r * r : pow(r, n.a);
+}
+
 // Elastic stress s and tangent ds of a law at strain e (model6.h).
 template <typename T>
 void elastic(const FoamLawT<T>& L, const T& e, T* s, T* ds) {
-  using std::pow;
   using std::tanh;
   const T th = tanh(L.modulus_pa * e / L.plateau_pa);
   *s = L.plateau_pa * th + L.hardening_pa * e;
@@ -72,7 +80,7 @@ void elastic(const FoamLawT<T>& L, const T& e, T* s, T* ds) {
   const bool beyond = val(e) > val(ec);
   const T x = beyond ? ec : e;
   const T r = x / (ed - x);
-  const T rn = pow(r, n);
+  const T rn = power(r, n);
   const T slope = L.densification_pa * n * rn / r * ed / ((ed - x) * (ed - x));
   *s += L.densification_pa * rn + (beyond ? slope * (e - ec) : T(0.0));
   *ds += slope;
@@ -112,7 +120,8 @@ void check(const Model6ParamsT<T>& p) {
 template <typename T>
 class Column {
  public:
-  Column(const Model6ParamsT<T>& p, const Model6Geometry& g, const Impact& imp) : imp_(imp), area_(g.area_m2) {
+  Column(const Model6ParamsT<T>& p, const Model6Geometry& g, const Impact& imp)
+      : imp_(imp), area_(g.area_m2) {
     const int nt = g.n_top, nb = g.base_thickness_m > 0.0 ? g.n_base : 0;
     n_ = nt + nb;
     n_top_ = nt;
@@ -155,7 +164,19 @@ class Column {
   bool step(double dt);
 
  private:
+  void newton(double dt);            // the step's node travels un_ (from their start in un_)
+  void finish_step(double dt);       // the state at the step's end from un_
+  bool advance_contact(double dt);   // the contact's change; false when it changed
   void static_state();
+  // The Prony recursion's coefficients over a step dt (kept for the last dt):
+  // q_i <- e_i q_i + b_i (change of the elastic stress).
+  void prony(double dt) const {
+    if (dt == prony_dt_) return;
+    using std::exp;
+    e1_ = exp(-T(dt) / tau1_), e2_ = exp(-T(dt) / tau2_);
+    b1_ = g1_ * (T(1.0) - e1_) * tau1_ / T(dt), b2_ = g2_ * (T(1.0) - e2_) * tau2_ / T(dt);
+    prony_dt_ = dt;
+  }
   void element_stresses(const std::vector<T>& u, const std::vector<T>& vel, double dt, std::vector<T>* se,
                         std::vector<T>* sigma, std::vector<T>* stiff) const;
 
@@ -171,6 +192,8 @@ class Column {
   T z_ = T(0.0), vz_ = T(0.0);  // the impactor in flight
   // Work arrays (no allocation in the time loop).
   mutable std::vector<T> un_, vn_, sen_, sign_, kn_, res_, diag_, off_;
+  mutable double prony_dt_ = -1.0;
+  mutable T e1_, e2_, b1_, b2_;
 };
 
 template <typename T>
@@ -213,9 +236,8 @@ void Column<T>::static_state() {
 template <typename T>
 void Column<T>::element_stresses(const std::vector<T>& u, const std::vector<T>& vel, double dt, std::vector<T>* se,
                                  std::vector<T>* sigma, std::vector<T>* stiff) const {
-  using std::exp;
-  const T e1 = exp(-T(dt) / tau1_), e2 = exp(-T(dt) / tau2_);
-  const T b1 = g1_ * (T(1.0) - e1) * tau1_ / T(dt), b2 = g2_ * (T(1.0) - e2) * tau2_ / T(dt);
+  prony(dt);
+  const T &e1 = e1_, &e2 = e2_, &b1 = b1_, &b2 = b2_;
   for (int j = 0; j < n_; ++j) {
     const T ub = j + 1 < n_ ? u[j + 1] : T(0.0), vb = j + 1 < n_ ? vel[j + 1] : T(0.0);
     const T e = es_[j] + (u[j] - ub) / h_[j];
@@ -231,10 +253,17 @@ void Column<T>::element_stresses(const std::vector<T>& u, const std::vector<T>& 
 
 template <typename T>
 bool Column<T>::step(double dt) {
-  const T M(imp_.mass_kg), g(imp_.gravity_m_s2), A(area_);
-  const T m0 = contact_ ? mass_[0] + M : mass_[0];
   // Newton on the node travels at the step's end; start: constant acceleration.
   for (int j = 0; j < n_; ++j) un_[j] = u_[j] + T(dt) * v_[j] + T(0.25 * dt * dt) * a_[j];
+  newton(dt);
+  finish_step(dt);
+  return advance_contact(dt);
+}
+
+template <typename T>
+void Column<T>::newton(double dt) {
+  const T M(imp_.mass_kg), g(imp_.gravity_m_s2), A(area_);
+  const T m0 = contact_ ? mass_[0] + M : mass_[0];
   const double c4 = 4.0 / (dt * dt), c2 = 2.0 / dt;
   double scale = 0.0;
   for (int it = 0; it < 30; ++it) {
@@ -265,16 +294,16 @@ bool Column<T>::step(double dt) {
     for (int j = 0; j < n_; ++j) un_[j] -= res_[j];
     if (converged) break;  // one step more than needed: the derivatives converge with it
   }
+}
+
+template <typename T>
+void Column<T>::finish_step(double dt) {
+  const double c4 = 4.0 / (dt * dt), c2 = 2.0 / dt;
   for (int j = 0; j < n_; ++j) vn_[j] = T(c2) * (un_[j] - u_[j]) - v_[j];
   element_stresses(un_, vn_, dt, &sen_, &sign_, &kn_);
-  {
-    using std::exp;
-    const T e1 = exp(-T(dt) / tau1_), e2 = exp(-T(dt) / tau2_);
-    const T b1 = g1_ * (T(1.0) - e1) * tau1_ / T(dt), b2 = g2_ * (T(1.0) - e2) * tau2_ / T(dt);
-    for (int j = 0; j < n_; ++j) {
-      q1_[j] = e1 * q1_[j] + b1 * (sen_[j] - se_[j]);
-      q2_[j] = e2 * q2_[j] + b2 * (sen_[j] - se_[j]);
-    }
+  for (int j = 0; j < n_; ++j) {
+    q1_[j] = e1_ * q1_[j] + b1_ * (sen_[j] - se_[j]);
+    q2_[j] = e2_ * q2_[j] + b2_ * (sen_[j] - se_[j]);
   }
   for (int j = 0; j < n_; ++j) {
     a_[j] = T(c4) * (un_[j] - u_[j] - T(dt) * v_[j]) - a_[j];
@@ -283,6 +312,11 @@ bool Column<T>::step(double dt) {
     se_[j] = sen_[j];
     sigma_[j] = sign_[j];
   }
+}
+
+template <typename T>
+bool Column<T>::advance_contact(double dt) {
+  const T M(imp_.mass_kg), g(imp_.gravity_m_s2), A(area_);
   const T f0 = -A * (sigma_[0] - ss_[0]);  // element 0's force on node 0 (downwards)
   if (contact_) {
     // The contact force on the impactor, upwards: M (g - a_0). It cannot pull.

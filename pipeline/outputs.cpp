@@ -4,6 +4,7 @@
 #include <filesystem>
 
 #include "pipeline/wiring.h"
+#include "report/model6_results.h"
 #include "report/opensim.h"
 #include "report/results.h"
 #include "report/session_report.h"
@@ -64,14 +65,45 @@ void add_trial_outputs(report::OutputSet& out, const SessionState& state) {
   out.add("summary.csv", report::summary_csv(results));
 }
 
-void add_fit_outputs(report::OutputSet& out, const std::string& prefix, const fitting::FitResult& fit,
-                     const SessionState& state, const std::string& label) {
-  out.add(prefix + "fit.json", report::fit_json(fit, state.session.manifest.impactor.mass_kg, label));
-  for (const auto& trial : fit.trials) {
+namespace {
+
+void add_series(report::OutputSet& out, const std::string& prefix, const std::vector<fitting::TrialReport>& trials,
+                const SessionState& state) {
+  for (const auto& trial : trials) {
     for (const auto& data : state.fit_data) {
       if (data.id == trial.id) out.add(prefix + "series/" + data.id + ".csv", report::fit_series_csv(data, trial));
     }
   }
+}
+
+}  // namespace
+
+void add_fit_outputs(report::OutputSet& out, const std::string& prefix, const fitting::FitResult& fit,
+                     const SessionState& state, const std::string& label) {
+  out.add(prefix + "fit.json", report::fit_json(fit, state.session.manifest.impactor.mass_kg, label));
+  add_series(out, prefix, fit.trials, state);
+}
+
+void add_model6_outputs(report::OutputSet& out, const std::string& prefix, const SessionState& state) {
+  if (!state.model6 || !state.model6->fit) return;
+  const Model6Stage& m6 = *state.model6;
+  report::Model6Choice choice;
+  choice.rival = m6.rival;
+  choice.chosen = m6.chosen;
+  if (m6.choice) choice.evidence = m6.choice->evidence;
+  choice.heldout_force_rms_noise_sd = m6.heldout_force_sd;
+  choice.heldout_impactor_rms_noise_sd = m6.heldout_impactor_sd;
+  choice.reaches_noise = m6.reaches_noise;
+  out.add(prefix + "fit.json",
+          report::model6_fit_json(*m6.fit, m6.options, state.session.manifest.impactor.mass_kg, choice));
+  add_series(out, prefix, m6.fit->trials, state);
+}
+
+fitting::FitResult model6_headline_fit(const fitting::Model6FitResult& fit) {
+  fitting::FitResult f = report::model6_as_fit(fit);
+  for (const auto& e : fit.estimates)
+    if (e.at_bound) f.warnings.push_back(e.name + " sits at the bound of its search range: the bound, not the data, sets it");
+  return f;
 }
 
 report::MatGeometry mat_geometry(const Manifest& manifest) {
@@ -109,7 +141,10 @@ void add_run_outputs(report::OutputSet& out, const SessionState& state) {
     out.add("diagnosis.json", diagnosis::diagnosis_json(*state.loop));
     if (state.loop->mat_fit) add_fit_outputs(out, "fits/closed_loop/", *state.loop->mat_fit, state, "closed_loop");
   }
-  if (final_fit) {
+  if (state.model6 && state.model6->fit) add_model6_outputs(out, "fits/model6/", state);
+  if (state.final_model6()) {
+    add_model6_outputs(out, "", state);
+  } else if (final_fit) {
     add_fit_outputs(out, "", *final_fit, state, state.final_label());
     if (layered(final_fit->model))
       out.add("mat.mjcf.xml", report::mjcf_xml(final_fit->model, final_fit->params, mat_geometry(man)));
@@ -122,7 +157,11 @@ void add_run_outputs(report::OutputSet& out, const SessionState& state) {
   for (const auto& t : state.trials) rep.trials.push_back(t.result);
   rep.fit_data = state.fit_data;
   rep.fits = state.fits;
-  if (final_fit) {
+  if (const fitting::Model6FitResult* m6 = state.final_model6()) {
+    rep.final_fit = model6_headline_fit(*m6);
+    rep.final_label = "model6";
+    rep.final_note = state.model6->reason + ". " + report::kModel6NoMjcf + ".";
+  } else if (final_fit) {
     rep.final_fit = *final_fit;
     rep.final_label = state.final_label();
   }

@@ -38,12 +38,20 @@ void add_trial_outputs(report::OutputSet& out, const SessionState& state);
 void add_fit_outputs(report::OutputSet& out, const std::string& prefix, const fitting::FitResult& fit,
                      const SessionState& state, const std::string& label = "");
 
+// Model 6's fit.json (report/model6_results.h) and series under `prefix`,
+// when the state has a Model 6 fit.
+void add_model6_outputs(report::OutputSet& out, const std::string& prefix, const SessionState& state);
+// A Model 6 fit as the report's headline takes a fit (training trials,
+// estimates, trial reports, bound warnings; no Model 1-5 parameters).
+fitting::FitResult model6_headline_fit(const fitting::Model6FitResult& fit);
+
 // The mat's layers as the MJCF export takes them (top = all but the last).
 report::MatGeometry mat_geometry(const Manifest& manifest);
 
-// Everything `run` writes: calibration, trials, every fit under fits/, the
-// final model as the canonical fit.json and mat.mjcf.xml, diagnosis.json,
-// report.html.
+// Everything `run` writes: calibration, trials, every fit under fits/ (Model
+// 6's under fits/model6/ when it was fitted), the final model as the
+// canonical fit.json and mat.mjcf.xml (none for Model 6: fit.json says
+// why), diagnosis.json, report.html.
 void add_run_outputs(report::OutputSet& out, const SessionState& state);
 
 }  // namespace dropfit::pipeline

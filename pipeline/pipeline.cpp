@@ -46,7 +46,12 @@ const fitting::FitResult* SessionState::final_fit() const {
   return fits.empty() ? nullptr : &fits.back();
 }
 
+const fitting::Model6FitResult* SessionState::final_model6() const {
+  return model6 && model6->chosen && model6->fit ? &*model6->fit : nullptr;
+}
+
 std::string SessionState::final_label() const {
+  if (final_model6()) return "model6";
   if (loop && loop->mat_fit) return "closed_loop";
   const auto* f = final_fit();
   return f ? fitting::model_name(f->model) : "";
@@ -238,10 +243,14 @@ void close_loop(SessionState& state) {
   // corrects every trial's force and every fit (the plate's own reading
   // kept beside it), so no result stands on data the loop showed wrong.
   if (state.loop) apply_plate_correction(state, state.loop->plate_correction);
+  // A final lumped model short of the noise: Model 6 may replace it.
+  consider_model6(state);
   // Each trial's clock offset from the contact instant the final mat model
   // placed on the force clock, replacing the plate-onset estimate, which
   // reads late on a layered mat.
-  if (const fitting::FitResult* final_fit = state.final_fit())
+  if (state.final_model6())
+    apply_model6_offsets(state);
+  else if (const fitting::FitResult* final_fit = state.final_fit())
     for (auto& t : state.trials) apply_fitted_offset(t.result, *final_fit);
 }
 
@@ -327,6 +336,11 @@ fitting::Simulation simulate_fitted(fitting::ModelKind model, const fitting::Mat
                                     const fitting::Impact& impact, const fitting::Model5Geometry& geometry) {
   if (model == fitting::ModelKind::Model5) return fitting::simulate_model5(params, geometry, impact);
   return fitting::simulate(model, params, impact);
+}
+
+fitting::Simulation simulate_fitted(const fitting::Model6Params& params, const fitting::Model6Geometry& geometry,
+                                    const fitting::Impact& impact) {
+  return fitting::simulate_model6(params, geometry, impact);
 }
 
 }  // namespace dropfit::pipeline

@@ -20,10 +20,12 @@
 //                   tilt, the calibration gates and acceptance
 //   fits            the mat models on the accepted trials
 //   loop            closing the loop (diagnosis/): effects named and their
-//                   corrections; the final model (the closed loop's when it
-//                   kept mat effects, else Model 4) places each trial's
-//                   contact on the force clock, which gives the trial's clock
-//                   offset
+//                   corrections; when the loop's final model (the closed
+//                   loop's when it kept mat effects, else Model 4) does not
+//                   reach the noise, Model 6 is fitted and chosen when it
+//                   predicts the held-out trials better (model6_stage.h);
+//                   the final model places each trial's contact on the
+//                   force clock, which gives the trial's clock offset
 #include <functional>
 #include <optional>
 #include <string>
@@ -34,6 +36,7 @@
 #include "diagnosis/diagnosis.h"
 #include "fitting/fit.h"
 #include "fitting/models.h"
+#include "pipeline/model6_stage.h"
 
 namespace dropfit::pipeline {
 
@@ -46,14 +49,21 @@ struct SessionState : diagnosis::SessionData {
   Stage reached = Stage::Read;  // the last stage built
   std::vector<fitting::ModelKind> models_asked;  // the fits stage's models
   std::optional<diagnosis::DiagnosisResult> loop;  // when the loop ran
+  // Model 6 when the loop's final model did not reach the noise (model6_stage.h).
+  std::optional<Model6Stage> model6;
   std::vector<std::string> notes;  // failed fits, fit warnings, stages that could not run
   int failed_fits = 0;
 
   int accepted() const;
-  // The final model: the closed loop's fit when the loop kept mat effects,
-  // else the Model 4 fit, else the last model fitted; null before the fits.
+  // The final lumped model: the closed loop's fit when the loop kept mat
+  // effects, else the Model 4 fit, else the last model fitted; null before
+  // the fits. It is the session's final model unless final_model6() is set.
   const fitting::FitResult* final_fit() const;
-  // "closed_loop" when the final model is the loop's, else its model name.
+  // Model 6 when it was chosen over final_fit() by held-out prediction (the
+  // session's final model then), else null.
+  const fitting::Model6FitResult* final_model6() const;
+  // "model6" when Model 6 is the final model, "closed_loop" when the loop's
+  // fit is, else the final fit's model name.
   std::string final_label() const;
 };
 
@@ -107,5 +117,8 @@ RunSummary summarise(const SessionState& state);
 // Model 5 with its default geometry).
 fitting::Simulation simulate_fitted(fitting::ModelKind model, const fitting::MatParams& params,
                                     const fitting::Impact& impact, const fitting::Model5Geometry& geometry = {});
+// ... and with a Model 6 fit's parameters and column.
+fitting::Simulation simulate_fitted(const fitting::Model6Params& params, const fitting::Model6Geometry& geometry,
+                                    const fitting::Impact& impact);
 
 }  // namespace dropfit::pipeline

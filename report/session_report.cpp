@@ -49,13 +49,20 @@ void final_model_section(HtmlDocument& doc, const SessionReport& r) {
   if (!r.final_fit) return;
   const fitting::FitResult& fit = *r.final_fit;
   doc.heading("The mat model");
-  doc.paragraph(fmt::format(
-      "The result of this session is {} ({}), trained on {}; fit.json and mat.mjcf.xml hold it. {}",
-      r.final_label == "closed_loop" ? "the closed loop's model" : "the " + fitting::model_name(fit.model) + " fit",
-      r.final_label == "closed_loop" ? fitting::model_name(fit.model) + " with the mat effects the loop kept"
-                                     : "no mat effect was needed",
-      fmt::join(fit.train_ids, ", "),
-      "Every model's own fit is under fits/."));
+  if (r.final_label == "model6") {
+    doc.paragraph(fmt::format(
+        "The result of this session is Model 6, the mat as a foam column (an elastic foam law with plateau and "
+        "densification per layer, two Prony terms, a viscosity), trained on {}; fit.json holds it. {} Every model's "
+        "own fit is under fits/.",
+        fmt::join(fit.train_ids, ", "), r.final_note));
+  } else {
+    doc.paragraph(fmt::format(
+        "The result of this session is {} ({}), trained on {}; fit.json and mat.mjcf.xml hold it. {}",
+        r.final_label == "closed_loop" ? "the closed loop's model" : "the " + fitting::model_name(fit.model) + " fit",
+        r.final_label == "closed_loop" ? fitting::model_name(fit.model) + " with the mat effects the loop kept"
+                                       : "no mat effect was needed",
+        fmt::join(fit.train_ids, ", "), "Every model's own fit is under fits/."));
+  }
   std::vector<std::vector<std::string>> rows;
   for (const auto& e : fit.estimates) {
     std::string note = !e.identifiable ? "not identified" : e.at_bound ? "at its bound" : e.free ? "" : "fixed";

@@ -29,9 +29,11 @@ struct SessionReport {
   std::vector<fitting::TrialData> fit_data;   // the fitter's view of each trial (measured)
   std::vector<fitting::FitResult> fits;       // one per model, in model order
   // The final model (the result): the closed loop's fit when the loop kept
-  // mat effects, else Model 4; the report's headline.
+  // mat effects, else Model 4, or Model 6 when it replaced them (its
+  // estimates and trial reports in a FitResult); the report's headline.
   std::optional<fitting::FitResult> final_fit;
-  std::string final_label;                    // "closed_loop" or the model's name
+  std::string final_label;                    // "closed_loop", "model6" or the model's name
+  std::string final_note;                     // how the final model was chosen, when not the loop's way
   // Closing the loop (empty when not run).
   bool loop_run = false;
   std::string loop_baseline_model;

@@ -1,0 +1,123 @@
+// Model 6 (the foam column) as the pipeline's candidate final model, on
+// sessions of worlds that share no code with dropfit, against their truth:
+//   - ../shared/validation-continuum c1, c2 and c6 (foam columns; c6 with a
+//     baseline drift and a second landing): the loop's lumped final model
+//     stays above the noise, Model 6 is fitted and chosen by held-out
+//     prediction; every held-out trial's peak force and maximum face travel,
+//     and every trial's clock offset (from the contacts Model 6 places),
+//     against the truth; no time_offset named (there is none); fit.json
+//     says model6 and why there is no MJCF. Measured: held-out peaks within
+//     0.8 %, travel within 0.4 mm, offsets within 0.04 ms (truth 0; the
+//     plate-onset estimates were 0.8-1.7 ms off); asserted at 1.5 %, 1 mm
+//     and 0.1 ms;
+//   - ../shared/validation v1 and v2 (lumped chains): the loop's model
+//     reaches the noise, so Model 6 is not fitted at all.
+// Read in place, skipped without ../shared, failing under CI=true
+// (tests/support/shared_data.h).
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <cstdio>
+#include <fstream>
+#include <string>
+
+#include "pipeline/outputs.h"
+#include "pipeline/pipeline.h"
+#include "report/output.h"
+#include "support/shared_data.h"
+
+namespace dropfit {
+namespace {
+
+using json = nlohmann::json;
+namespace fs = std::filesystem;
+using testsupport::shared_path;
+
+struct Tolerance {
+  double peak = 0.015;       // held-out peak force, relative
+  double travel_m = 1.0e-3;  // held-out maximum face travel
+  double offset_s = 0.1e-3;  // every trial's clock offset
+};
+
+// Every trial as Model 6 predicted it: simulated peak force and maximum face
+// travel within the contact window.
+void check_model6_final(const fs::path& dir, const Tolerance& tol) {
+  DROPFIT_NEED_SHARED(dir);
+  const pipeline::SessionState state = pipeline::build((dir / "session").string());
+  std::ifstream in(dir / "truth.json");
+  const json truth = json::parse(in);
+  ASSERT_EQ(state.final_label(), "model6") << (state.model6 ? state.model6->reason : "Model 6 not fitted");
+  const fitting::Model6FitResult& fit = *state.final_model6();
+  std::printf("%s\n", state.model6->reason.c_str());
+  for (const auto& t : truth["trials"]) {
+    const std::string id = t["id"];
+    SCOPED_TRACE(id);
+    const auto rep = std::find_if(fit.trials.begin(), fit.trials.end(), [&](const auto& r) { return r.id == id; });
+    ASSERT_NE(rep, fit.trials.end());
+    double peak = 0.0, travel = 0.0;
+    for (Eigen::Index i = 0; i < rep->simulation.t_s.size() && rep->simulation.t_s[i] <= rep->window_end_s; ++i) {
+      peak = std::max(peak, rep->simulation.grf_n[i]);
+      if (rep->simulation.t_s[i] >= 0.0) travel = std::max(travel, rep->simulation.impactor_m[i]);
+    }
+    const double peak_err = peak / t["peak_force_n"].get<double>() - 1.0;
+    const double travel_err = travel - t["max_deformation_m"].get<double>();
+    const auto st = std::find_if(state.trials.begin(), state.trials.end(),
+                                 [&](const auto& s) { return s.result.id == id; });
+    ASSERT_NE(st, state.trials.end());
+    const double offset_err = st->result.video_offset_s - t["video_offset_s"].get<double>();
+    std::printf("%s%s: peak %+.2f %%, travel %+.2f mm, offset %+.3f ms (SE %.3f ms; onset estimate %+.3f ms)\n",
+                id.c_str(), rep->train ? " (train)" : "", 100.0 * peak_err, 1e3 * travel_err, 1e3 * offset_err,
+                1e3 * st->result.video_offset_se_s, 1e3 * st->result.video_offset_onset_s);
+    if (!rep->train) {
+      EXPECT_LT(std::abs(peak_err), tol.peak);
+      EXPECT_LT(std::abs(travel_err), tol.travel_m);
+    }
+    EXPECT_LT(std::abs(offset_err), tol.offset_s);
+    // The interval the offset carries is finite and not wider than a frame.
+    EXPECT_TRUE(std::isfinite(st->result.video_offset_se_s));
+    EXPECT_LT(st->result.video_offset_se_s, 1e-3);
+  }
+  ASSERT_TRUE(state.loop);
+  EXPECT_EQ(state.loop->find("time_offset"), nullptr) << "a clock offset named on a session without one";
+
+  // The canonical fit.json is Model 6's, with why it has no MJCF; fits/model6/ beside it.
+  report::OutputSet out;
+  pipeline::add_run_outputs(out, state);
+  const auto file = [&](const std::string& name) -> const std::string* {
+    const auto it = out.files().find(name);
+    return it == out.files().end() ? nullptr : &it->second;
+  };
+  ASSERT_NE(file("fit.json"), nullptr);
+  ASSERT_NE(file("fits/model6/fit.json"), nullptr);
+  EXPECT_EQ(file("mat.mjcf.xml"), nullptr);
+  const json fj = json::parse(*file("fit.json"));
+  EXPECT_EQ(fj["model"], "model6");
+  EXPECT_EQ(fj["label"], "model6");
+  EXPECT_TRUE(fj["mjcf"].is_null());
+  EXPECT_NE(fj["mjcf_note"].get<std::string>().find("no MJCF"), std::string::npos);
+  EXPECT_EQ(fj["estimates"].size(), 14u);
+  EXPECT_TRUE(fj["choice"]["chosen"].get<bool>());
+}
+
+void check_not_triggered(const fs::path& dir) {
+  DROPFIT_NEED_SHARED(dir);
+  const pipeline::SessionState state = pipeline::build((dir / "session").string());
+  EXPECT_FALSE(state.model6.has_value()) << state.model6->reason;
+  EXPECT_NE(state.final_label(), "model6");
+}
+
+TEST(Model6Pipeline, ContinuumC1FinalModelIsModel6) {
+  check_model6_final(shared_path("validation-continuum") / "c1-foam", {});
+}
+TEST(Model6Pipeline, ContinuumC2FinalModelIsModel6) {
+  check_model6_final(shared_path("validation-continuum") / "c2-foam", {});
+}
+TEST(Model6Pipeline, ContinuumC6DriftSecondImpactFinalModelIsModel6) {
+  check_model6_final(shared_path("validation-continuum") / "c6-second-impact-drift", {});
+}
+TEST(Model6Pipeline, LumpedChainV1NotTriggered) { check_not_triggered(shared_path("validation") / "v1-realistic"); }
+TEST(Model6Pipeline, LumpedChainV2NotTriggered) { check_not_triggered(shared_path("validation") / "v2-linear-control"); }
+
+}  // namespace
+}  // namespace dropfit
