@@ -23,7 +23,8 @@ set(DROPFIT_INTERNAL_HEADERS
   capture/force_internal.h capture/text_io.h
   capture/footage.h  # dropfit_video (OpenCV footage) stays in the build tree
   diagnosis/internal.h
-  fitting/models_impl.h fitting/model5_impl.h)
+  fitting/models_impl.h fitting/model5_impl.h fitting/model5_layout.h fitting/model5_dual.h
+  fitting/model5_integrator.h)
 
 set(dropfit_installed_targets)
 foreach(stage IN LISTS DROPFIT_INSTALLED_STAGES)

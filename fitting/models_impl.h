@@ -560,90 +560,82 @@ class Rk4Integrator {
 };
 
 // ---------------------------------------------------------------------------
-// Runs one impact and fills `out` at t = i * output_dt, i = 0..n-1.
-// use_exact: the exponential form (no effects allowed).
+// Ground reaction: the force of the element touching the ground (index
+// n_elem - 1) from the masses' travels y and velocities w (0: the impactor,
+// 1 and 2: the layers), the contact state and the Maxwell arm's force fm.
 template <typename T>
-void run_model(const Layout& L, const ParamsT<T>& p, const Impact& imp, bool use_exact,
-               double rk4_max_step_s, int n, Trace<T>& out) {
-  out.grf.assign(n, T(0.0));
-  out.impactor.assign(n, T(0.0));
-  out.surface.assign(n, T(0.0));
-  out.layer1.assign(n, T(0.0));
-  out.layer2.assign(n, T(0.0));
-  out.separated = false;
-  out.separation_s = T(0.0);
-  const double h = imp.output_dt_s;
-  const T M = T(imp.mass_kg);
-  const T v0 = T(imp.velocity_m_s);
-
-  // Initial state at first contact (t = 0+): rigid-top models share
-  // momentum with m1 in a plastic collision.
-  const T v_start = L.rigid_top ? M * v0 / (M + p.m1) : v0;
-
-  auto grf_of = [&](const T& y1, const T& w1, const T& y2, const T& w2, const T& y0, const T& w0,
-                    bool contact, const T& fm) -> T {
-    // Force of the element touching the ground (index n_elem - 1).
-    const int j = L.n_elem - 1;
-    const int a = L.upper[j];
-    const T ya = a == 0 ? y0 : (a == 1 ? y1 : y2);
-    const T va = a == 0 ? w0 : (a == 1 ? w1 : w2);
-    if (j == 0) {
-      if (!L.rigid_top && !contact) return T(0.0);
-      T f = element1_force(p, ya, va, fm);
-      if (!L.rigid_top && scalar_of(f) < 0.0) f = T(0.0);
-      return f;
-    }
-    return p.k[j] * ya + p.r[j] * va;
-  };
-
-  bool contact = true;
-  if (use_exact) {
-    ExactIntegrator<T> ex(L, p, imp);
-    typename ExactIntegrator<T>::Vec X = ExactIntegrator<T>::Vec::Zero();
-    X(1) = v_start;
-    if (L.rigid_top) X(3) = v_start;
-    X(7) = T(1.0);
-    typename ExactIntegrator<T>::Vec Z = ex.to_scaled(X);
-    const T hh = T(h);
-    if (imp.first_output_s > 0.0) ex.advance(Z, imp.first_output_s / h);
-    for (int i = 0; i < n; ++i) {
-      if (i > 0) {
-        T frac = T(0.0);
-        const bool was_contact = contact;
-        if (ex.step_output(Z, contact, &frac) && was_contact && !out.separated) {
-          out.separated = true;
-          out.separation_s = (T(i - 1) + frac) * hh + T(imp.first_output_s);
-        }
-      }
-      const T y0 = Z(0), y1 = Z(2), y2 = Z(4);
-      const T w0 = ex.velocity(Z, 0), w1 = ex.velocity(Z, 1), w2 = ex.velocity(Z, 2);
-      out.impactor[i] = y0;
-      out.layer1[i] = L.n_mass > 0 ? y1 : T(0.0);
-      out.layer2[i] = L.n_mass > 1 ? y2 : T(0.0);
-      if (L.rigid_top) {
-        out.surface[i] = y1;
-      } else if (contact) {
-        out.surface[i] = y0;
-      } else {
-        out.surface[i] = (L.base() >= 0 ? Z(2 * L.base()) : T(0.0)) + Z(6);
-      }
-      out.grf[i] = grf_of(y1, w1, y2, w2, y0, w0, contact, T(0.0));
-    }
-    return;
+T ground_force(const Layout& L, const ParamsT<T>& p, const T& y1, const T& w1, const T& y2, const T& w2,
+               const T& y0, const T& w0, bool contact, const T& fm) {
+  const int j = L.n_elem - 1;
+  const int a = L.upper[j];
+  const T ya = a == 0 ? y0 : (a == 1 ? y1 : y2);
+  const T va = a == 0 ? w0 : (a == 1 ? w1 : w2);
+  if (j == 0) {
+    if (!L.rigid_top && !contact) return T(0.0);
+    T f = element1_force(p, ya, va, fm);
+    if (!L.rigid_top && scalar_of(f) < 0.0) f = T(0.0);
+    return f;
   }
+  return p.k[j] * ya + p.r[j] * va;
+}
 
-  Rk4Integrator<T> rk(L, p, imp);
-  typename Rk4Integrator<T>::Vec X = Rk4Integrator<T>::Vec::Zero();
+// The state at first contact (t = 0+): the impactor (and a rigid top) at
+// v_start, everything else at rest.
+template <typename Vec, typename T>
+Vec contact_state(const Layout& L, const T& v_start) {
+  Vec X = Vec::Zero();
   X(1) = v_start;
   if (L.rigid_top) X(3) = v_start;
-  // Step: at most rk4_max_step_s, 0.5 / w and 1 / d, with w a rough bound
-  // on the fastest oscillation (stiffnesses over the lightest mass) and d
-  // on the fastest decay (dampings over it, and a Maxwell arm's 1 / tau).
-  // An oscillation needs the step for accuracy (RK4's phase error grows
-  // as (h w)^4); a decay only for stability (h d <= 2.8) and for the
-  // quasi-static force it leaves, which h d <= 1 keeps within 0.001 % of
-  // the peak (docs/models.md). Separate bounds keep heavily damped layers,
-  // which the fitter tries, from shortening the step as a stiff one would.
+  return X;
+}
+
+// The exponential form (no effects): outputs at t = first_output_s + i h
+// from the state at first contact (impactor and rigid top at v_start).
+template <typename T>
+void run_exact(const Layout& L, const ParamsT<T>& p, const Impact& imp, const T& v_start, int n, Trace<T>& out) {
+  const double h = imp.output_dt_s;
+  bool contact = true;
+  ExactIntegrator<T> ex(L, p, imp);
+  auto X = contact_state<typename ExactIntegrator<T>::Vec>(L, v_start);
+  X(7) = T(1.0);
+  typename ExactIntegrator<T>::Vec Z = ex.to_scaled(X);
+  const T hh = T(h);
+  if (imp.first_output_s > 0.0) ex.advance(Z, imp.first_output_s / h);
+  for (int i = 0; i < n; ++i) {
+    if (i > 0) {
+      T frac = T(0.0);
+      const bool was_contact = contact;
+      if (ex.step_output(Z, contact, &frac) && was_contact && !out.separated) {
+        out.separated = true;
+        out.separation_s = (T(i - 1) + frac) * hh + T(imp.first_output_s);
+      }
+    }
+    const T y0 = Z(0), y1 = Z(2), y2 = Z(4);
+    const T w0 = ex.velocity(Z, 0), w1 = ex.velocity(Z, 1), w2 = ex.velocity(Z, 2);
+    out.impactor[i] = y0;
+    out.layer1[i] = L.n_mass > 0 ? y1 : T(0.0);
+    out.layer2[i] = L.n_mass > 1 ? y2 : T(0.0);
+    if (L.rigid_top) {
+      out.surface[i] = y1;
+    } else if (contact) {
+      out.surface[i] = y0;
+    } else {
+      out.surface[i] = (L.base() >= 0 ? Z(2 * L.base()) : T(0.0)) + Z(6);
+    }
+    out.grf[i] = ground_force(L, p, y1, w1, y2, w2, y0, w0, contact, T(0.0));
+  }
+}
+
+// RK4's longest step: at most rk4_max_step_s, 0.5 / w and 1 / d, with w a
+// rough bound on the fastest oscillation (stiffnesses over the lightest
+// mass) and d on the fastest decay (dampings over it, and a Maxwell arm's
+// 1 / tau). An oscillation needs the step for accuracy (RK4's phase error
+// grows as (h w)^4); a decay only for stability (h d <= 2.8) and for the
+// quasi-static force it leaves, which h d <= 1 keeps within 0.001 % of the
+// peak (docs/models.md). Separate bounds keep heavily damped layers, which
+// the fitter tries, from shortening the step as a stiff one would.
+template <typename T>
+double rk4_step_bound_s(const Layout& L, const ParamsT<T>& p, const Impact& imp, double rk4_max_step_s) {
   double k_sum = 0.0, r_sum = 0.0, m_min = imp.mass_kg;
   for (int j = 0; j < L.n_elem; ++j) {
     k_sum += std::abs(scalar_of(p.k[j]));
@@ -657,7 +649,20 @@ void run_model(const Layout& L, const ParamsT<T>& p, const Impact& imp, bool use
   const double w = std::sqrt(k_sum / m_min);
   double d = r_sum / m_min;
   if (p.maxwell) d = std::max(d, 1.0 / std::max(scalar_of(p.maxwell_tau), 1e-9));
-  const double h_max = std::min({rk4_max_step_s, 0.5 / std::max(w, 1e-9), 1.0 / std::max(d, 1e-9)});
+  return std::min({rk4_max_step_s, 0.5 / std::max(w, 1e-9), 1.0 / std::max(d, 1e-9)});
+}
+
+// RK4 (any effect): each output interval in equal substeps within
+// rk4_step_bound_s; the separation instant interpolated on the contact
+// force within its substep.
+template <typename T>
+void run_rk4(const Layout& L, const ParamsT<T>& p, const Impact& imp, const T& v_start, double rk4_max_step_s,
+             int n, Trace<T>& out) {
+  const double h = imp.output_dt_s;
+  bool contact = true;
+  Rk4Integrator<T> rk(L, p, imp);
+  auto X = contact_state<typename Rk4Integrator<T>::Vec>(L, v_start);
+  const double h_max = rk4_step_bound_s(L, p, imp, rk4_max_step_s);
   const int sub = std::max(1, static_cast<int>(std::ceil(h / h_max - 1e-9)));
   const double hs = h / sub;
   if (imp.first_output_s > 0.0) {
@@ -687,8 +692,31 @@ void run_model(const Layout& L, const ParamsT<T>& p, const Impact& imp, bool use
     out.layer1[i] = L.n_mass > 0 ? X(2) : T(0.0);
     out.layer2[i] = L.n_mass > 1 ? X(4) : T(0.0);
     out.surface[i] = rk.surface(X, contact);
-    out.grf[i] = grf_of(X(2), X(3), X(4), X(5), X(0), X(1), contact, X(7));
+    out.grf[i] = ground_force(L, p, X(2), X(3), X(4), X(5), X(0), X(1), contact, X(7));
   }
+}
+
+// Runs one impact and fills `out` at t = i * output_dt, i = 0..n-1.
+// use_exact: the exponential form (no effects allowed).
+template <typename T>
+void run_model(const Layout& L, const ParamsT<T>& p, const Impact& imp, bool use_exact,
+               double rk4_max_step_s, int n, Trace<T>& out) {
+  out.grf.assign(n, T(0.0));
+  out.impactor.assign(n, T(0.0));
+  out.surface.assign(n, T(0.0));
+  out.layer1.assign(n, T(0.0));
+  out.layer2.assign(n, T(0.0));
+  out.separated = false;
+  out.separation_s = T(0.0);
+  const T M = T(imp.mass_kg);
+  const T v0 = T(imp.velocity_m_s);
+  // Initial state at first contact (t = 0+): rigid-top models share
+  // momentum with m1 in a plastic collision.
+  const T v_start = L.rigid_top ? M * v0 / (M + p.m1) : v0;
+  if (use_exact)
+    run_exact(L, p, imp, v_start, n, out);
+  else
+    run_rk4(L, p, imp, v_start, rk4_max_step_s, n, out);
 }
 
 // Maps MatParams (or a parameter block) onto ParamsT for a model.

@@ -39,17 +39,7 @@ fitting::MatParams params_from(const ParamDict& values) {
 // are switched on (fit.json's "parameters").
 ParamDict dict_of(fitting::ModelKind kind, const fitting::MatParams& p) {
   ParamDict out;
-  for (const auto& name : fitting::parameter_names(kind, true)) out[name] = fitting::get_parameter(p, name);
-  if (p.k1_cubic_n_m3 != 0.0) out["k1_cubic_n_m3"] = p.k1_cubic_n_m3;
-  if (p.r1_unload_n_s_m >= 0.0) out["r1_unload_n_s_m"] = p.r1_unload_n_s_m;
-  if (p.maxwell_k_n_m > 0.0 && p.maxwell_tau_s > 0.0) {
-    out["maxwell_k_n_m"] = p.maxwell_k_n_m;
-    out["maxwell_tau_s"] = p.maxwell_tau_s;
-  }
-  if (p.k1_unload_ratio > 0.0) {
-    out["k1_unload_ratio"] = p.k1_unload_ratio;
-    out["k1_unload_speed_m_s"] = p.k1_unload_speed_m_s;
-  }
+  for (const auto& [name, value] : report::named_parameters(kind, p)) out[name] = value;
   return out;
 }
 

@@ -10,56 +10,12 @@
 #include "core/error.h"
 
 namespace dropfit::report {
-namespace {
-
-struct Field {
-  const char* name;
-  double fitting::MatParams::*member;
-};
-
-constexpr Field kFields[] = {
-    {"k1_n_m", &fitting::MatParams::k1_n_m},
-    {"k2_n_m", &fitting::MatParams::k2_n_m},
-    {"k3_n_m", &fitting::MatParams::k3_n_m},
-    {"r1_n_s_m", &fitting::MatParams::r1_n_s_m},
-    {"r2_n_s_m", &fitting::MatParams::r2_n_s_m},
-    {"r3_n_s_m", &fitting::MatParams::r3_n_s_m},
-    {"m_eff_kg", &fitting::MatParams::m_eff_kg},
-    {"m1_kg", &fitting::MatParams::m1_kg},
-    {"m2_kg", &fitting::MatParams::m2_kg},
-    {"k1_cubic_n_m3", &fitting::MatParams::k1_cubic_n_m3},
-    {"r1_unload_n_s_m", &fitting::MatParams::r1_unload_n_s_m},
-    {"maxwell_k_n_m", &fitting::MatParams::maxwell_k_n_m},
-    {"maxwell_tau_s", &fitting::MatParams::maxwell_tau_s},
-    {"k1_unload_ratio", &fitting::MatParams::k1_unload_ratio},
-    {"k1_unload_speed_m_s", &fitting::MatParams::k1_unload_speed_m_s},
-};
-
-std::vector<std::string> used_names(fitting::ModelKind kind) {
-  switch (kind) {
-    case fitting::ModelKind::Model1: return {"k1_n_m", "r1_n_s_m"};
-    case fitting::ModelKind::Model2: return {"k1_n_m", "r1_n_s_m", "m_eff_kg"};
-    case fitting::ModelKind::Model3: return {"k1_n_m", "k2_n_m", "r1_n_s_m", "r2_n_s_m", "m1_kg", "m2_kg"};
-    case fitting::ModelKind::Model4:
-    case fitting::ModelKind::Model5:
-      return {"k1_n_m", "k2_n_m", "k3_n_m", "r1_n_s_m", "r2_n_s_m", "r3_n_s_m", "m1_kg", "m2_kg"};
-  }
-  return {};
-}
-
-double get(const fitting::MatParams& p, const std::string& name) {
-  for (const auto& f : kFields) {
-    if (name == f.name) return p.*(f.member);
-  }
-  return NAN;
-}
-
-}  // namespace
 
 std::vector<std::pair<std::string, double>> named_parameters(fitting::ModelKind kind,
                                                              const fitting::MatParams& params) {
   std::vector<std::pair<std::string, double>> out;
-  for (const auto& name : used_names(kind)) out.emplace_back(name, get(params, name));
+  for (const auto& name : fitting::parameter_names(kind, true))
+    out.emplace_back(name, fitting::get_parameter(params, name));
   if (params.k1_cubic_n_m3 != 0.0) out.emplace_back("k1_cubic_n_m3", params.k1_cubic_n_m3);
   if (params.r1_unload_n_s_m >= 0.0) out.emplace_back("r1_unload_n_s_m", params.r1_unload_n_s_m);
   if (params.maxwell_k_n_m > 0.0 && params.maxwell_tau_s > 0.0) {
@@ -77,14 +33,11 @@ fitting::MatParams params_from_named(const std::vector<std::pair<std::string, do
                                      const std::string& source) {
   fitting::MatParams params;
   for (const auto& [name, value] : named) {
-    bool known = false;
-    for (const auto& f : kFields) {
-      if (name == f.name) {
-        params.*(f.member) = value;
-        known = true;
-      }
+    try {
+      fitting::set_parameter(params, name, value);
+    } catch (const Error&) {
+      throw InputError(source, 0, 0, "parameters." + name, "unknown parameter name");
     }
-    if (!known) throw InputError(source, 0, 0, "parameters." + name, "unknown parameter name");
     if (!std::isfinite(value)) throw InputError(source, 0, 0, "parameters." + name, "not a finite number");
   }
   return params;

@@ -2,7 +2,7 @@
 //
 //   dropfit-synth --out SESSION_DIR --truth FILE [--world lab|independent|classic]
 //                 [--seed N] [--model 1..4] [--effect name=magnitude ...]
-//                 [--random-effects] [... every option of SynthOptions: --help]
+//                 [--fault name=magnitude ...] [--random-effects] [... every option of SynthOptions: --help]
 //
 // The session folder follows docs/formats.md (written by
 // capture::write_session); the truth JSON goes elsewhere (keep it out of
@@ -15,6 +15,7 @@
 #include <exception>
 #include <filesystem>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "capture/io.h"
@@ -23,11 +24,11 @@
 
 namespace {
 
-// "name=magnitude" -> set on the effects; throws dropfit::Error.
-void parse_effect(dropfit::synth::Effects& effects, const std::string& text) {
+// "name=magnitude" of --effect or --fault (`option`) -> (name, magnitude); throws dropfit::Error.
+std::pair<std::string, double> parse_magnitude(const std::string& option, const std::string& text) {
   const auto eq = text.find('=');
   if (eq == std::string::npos || eq == 0 || eq + 1 == text.size())
-    throw dropfit::Error(fmt::format("--effect '{}': expected name=magnitude", text));
+    throw dropfit::Error(fmt::format("{} '{}': expected name=magnitude", option, text));
   const std::string name = text.substr(0, eq);
   const std::string value = text.substr(eq + 1);
   double magnitude = 0.0;
@@ -37,8 +38,8 @@ void parse_effect(dropfit::synth::Effects& effects, const std::string& text) {
   } catch (const std::exception&) {
     used = 0;
   }
-  if (used != value.size()) throw dropfit::Error(fmt::format("--effect '{}': '{}' is not a number", text, value));
-  dropfit::synth::set_effect(effects, name, magnitude);
+  if (used != value.size()) throw dropfit::Error(fmt::format("{} '{}': '{}' is not a number", option, text, value));
+  return {name, magnitude};
 }
 
 // "TRIAL:POINT:CAMERA:FIRST:COUNT" (trial and camera 1-based, camera 0 = all).
@@ -109,7 +110,7 @@ void parse_param(dropfit::synth::MatParams& p, const std::string& text) {
 struct CliValues {
   std::string out_dir, truth_path, world;
   int model = 1;
-  std::vector<std::string> effects, gaps, params;
+  std::vector<std::string> effects, faults, gaps, params;
   bool drift_whole = false, random_effects = false;
   std::string mat_markers, base_markers;
   std::vector<double> window;
@@ -179,6 +180,15 @@ void add_run_options(CLI::App& app, CliValues& v, dropfit::synth::SynthOptions& 
                  "stiffness_nonlinearity (k1_cubic N/m^3), hysteresis (r1_unload N s/m: extra damping), "
                  "hysteresis_elastic (h: elastic force (1-h) lower while unloading), rate_dependence (Maxwell k N/m), "
                  "layer_mass (kg moved to the top layer)");
+  app.add_option("--fault", v.faults,
+                 "inject an instrument fault: name=magnitude; names: dead_channel, reversed_channel (channel 0-7: "
+                 "Fx12 Fx34 Fy14 Fy23 Fz1 Fz2 Fz3 Fz4), exchanged_channels (two digits: 47 exchanges channels 4 and "
+                 "7), saturation (N per channel), amplifier_lowpass (Hz: Butterworth corner before sampling), "
+                 "softening (stiffness fraction lost per trial), declared_mass (kg in the manifest), second_impact "
+                 "(1: not caught, lands again)");
+  app.add_option("--lowpass-order", o.faults.amplifier_lowpass_order, "order of the amplifier_lowpass fault (2 or 4)")
+      ->check(CLI::IsMember({2, 4}))
+      ->capture_default_str();
   app.add_flag("--random-effects", v.random_effects, "add a random mix of effects (none, one or several) from the seed");
   app.add_option("--maxwell-tau", o.effects.maxwell_tau_s, "time constant of the rate_dependence Maxwell arm (s)")
       ->capture_default_str();
@@ -248,7 +258,14 @@ void apply_cli_values(const CliValues& v, dropfit::synth::SynthOptions& o) {
     for (const std::string& p : v.params) parse_param(o.params, p);
   }
   if (v.random_effects) dropfit::synth::add_random_effects(o, o.seed);
-  for (const std::string& e : v.effects) parse_effect(o.effects, e);
+  for (const std::string& e : v.effects) {
+    const auto [name, magnitude] = parse_magnitude("--effect", e);
+    dropfit::synth::set_effect(o.effects, name, magnitude);
+  }
+  for (const std::string& f : v.faults) {
+    const auto [name, magnitude] = parse_magnitude("--fault", f);
+    dropfit::synth::set_fault(o, name, magnitude);
+  }
   o.effects.baseline_drift_whole_record = v.drift_whole;
   for (const std::string& g : v.gaps) o.gaps.push_back(parse_gap(g));
   o.mat_marker_motion =

@@ -275,7 +275,7 @@ struct SynthOptions {
 
 void set_fault(SynthOptions& options, const std::string& name, double magnitude);
 
-// The paper-like default parameters of each model (see synth.cpp for how the
+// The paper-like default parameters of each model (see synth_options.cpp for how the
 // Model 4 set was chosen); masses from the declared layers (m1 = all layers
 // but the last, m2 = the last).
 MatParams default_mat_params(ModelChoice model, const std::vector<LayerSpec>& layers);
