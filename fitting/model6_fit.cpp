@@ -432,7 +432,7 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   long iterations = 0;
   // First the shifts held at the estimate throughout (stage_rounds x
   // stage_iterations), then from the same start re-profiled between
-  // rounds; the second stage goes on from the lower cost of the two.
+  // rounds; the second stage runs from both ends (below).
   double u0[kFree];
   std::copy(u, u + kFree, u0);
   so.max_num_iterations = options.stage_rounds * options.stage_iterations;
@@ -440,7 +440,6 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   iterations += static_cast<long>(summary.iterations.size());
   double held_u[kFree];
   std::copy(u, u + kFree, held_u);
-  const double held_cost = summary.final_cost;
   std::copy(u0, u0 + kFree, u);
   so.max_num_iterations = options.stage_iterations;
   for (int round = 0; round < options.stage_rounds; ++round) {
@@ -457,17 +456,27 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
       shifts[k] = profile_shift(windows[k], grf, options.contact_shift_min_s, options.contact_shift_max_s);
     }
   }
-  double profiled_cost = 0.0;
-  problem.Evaluate(ceres::Problem::EvaluateOptions{}, &profiled_cost, nullptr, nullptr, nullptr);
-  if (held_cost < profiled_cost) {
-    std::copy(held_u, held_u + kFree, u);
-    std::fill(shifts.begin(), shifts.end(), 0.0);
-  }
+  // The second stage (shifts free) from each first-stage end; the lower
+  // final cost is the fit (the cheaper first-stage end need not lead to
+  // the cheaper optimum).
   for (double& sh : shifts) problem.SetParameterBlockVariable(&sh);
   so.max_num_iterations = options.max_iterations;
   so.function_tolerance = options.function_tolerance;
   ceres::Solve(so, &problem, &summary);
   iterations += static_cast<long>(summary.iterations.size());
+  double best_u[kFree];
+  std::copy(u, u + kFree, best_u);
+  const std::vector<double> best_shifts = shifts;
+  const ceres::Solver::Summary profiled_summary = summary;
+  std::copy(held_u, held_u + kFree, u);
+  std::fill(shifts.begin(), shifts.end(), 0.0);
+  ceres::Solve(so, &problem, &summary);
+  iterations += static_cast<long>(summary.iterations.size());
+  if (!(summary.final_cost < profiled_summary.final_cost)) {
+    std::copy(best_u, best_u + kFree, u);
+    std::copy(best_shifts.begin(), best_shifts.end(), shifts.begin());  // in place: the problem holds their addresses
+    summary = profiled_summary;
+  }
 
   Model6FitResult res;
   res.params = to_params(u, options);
