@@ -390,6 +390,34 @@ TrialReport predict_model6(const TrialData& trial, const Model6Params& params, c
   return rep;
 }
 
+namespace {
+
+// The first stage with the clock shifts held within each round and each
+// re-profiled for the current parameters between rounds; returns the
+// iterations taken.
+long reprofiled_rounds(ceres::Problem& problem, const ceres::Solver::Options& so, const double* u,
+                       std::vector<double>& shifts, const std::vector<Window>& windows,
+                       const Model6FitOptions& options, ceres::Solver::Summary& summary) {
+  long iterations = 0;
+  for (int round = 0; round < options.stage_rounds; ++round) {
+    ceres::Solve(so, &problem, &summary);
+    iterations += static_cast<long>(summary.iterations.size());
+    const Model6ParamsT<double> p = model6_params_t<double>(to_params(u, options));
+    for (size_t k = 0; k < windows.size(); ++k) {
+      std::vector<double> grf;
+      try {
+        simulate_model6_t<double>(p, options.geometry, windows[k].impact, windows[k].n_grid, &grf, nullptr);
+      } catch (const Error&) {
+        continue;
+      }
+      shifts[k] = profile_shift(windows[k], grf, options.contact_shift_min_s, options.contact_shift_max_s);
+    }
+  }
+  return iterations;
+}
+
+}  // namespace
+
 Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6FitOptions& options) {
   const auto t0 = std::chrono::steady_clock::now();
   const std::vector<const TrialData*> train = training(trials, options.train_ids);
@@ -442,20 +470,7 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   std::copy(u, u + kFree, held_u);
   std::copy(u0, u0 + kFree, u);
   so.max_num_iterations = options.stage_iterations;
-  for (int round = 0; round < options.stage_rounds; ++round) {
-    ceres::Solve(so, &problem, &summary);
-    iterations += static_cast<long>(summary.iterations.size());
-    const Model6ParamsT<double> p = model6_params_t<double>(to_params(u, options));
-    for (size_t k = 0; k < windows.size(); ++k) {
-      std::vector<double> grf;
-      try {
-        simulate_model6_t<double>(p, options.geometry, windows[k].impact, windows[k].n_grid, &grf, nullptr);
-      } catch (const Error&) {
-        continue;
-      }
-      shifts[k] = profile_shift(windows[k], grf, options.contact_shift_min_s, options.contact_shift_max_s);
-    }
-  }
+  iterations += reprofiled_rounds(problem, so, u, shifts, windows, options, summary);
   // The second stage (shifts free) from each first-stage end; the lower
   // final cost is the fit (the cheaper first-stage end need not lead to
   // the cheaper optimum).
