@@ -6,10 +6,9 @@
 //     prediction; every held-out trial's peak force and maximum face travel,
 //     and every trial's clock offset (from the contacts Model 6 places),
 //     against the truth; no time_offset named (there is none); fit.json
-//     says model6 and why there is no MJCF. Measured: held-out peaks within
-//     0.8 %, travel within 0.4 mm, offsets within 0.04 ms (truth 0; the
-//     plate-onset estimates were 0.8-1.7 ms off); asserted at 1.5 %, 1 mm
-//     and 0.1 ms;
+//     says model6 and why there is no MJCF. Asserted: held-out peaks
+//     within 1.5 %, travel within 1 mm, offsets within 0.1 ms (truth 0;
+//     docs/validation.md has the measured errors);
 //   - ../shared/validation v1 and v2 (lumped chains): the loop's model
 //     reaches the noise, so Model 6 is not fitted at all.
 // Read in place, skipped without ../shared, failing under CI=true
