@@ -26,6 +26,30 @@ nlohmann::ordered_json error_set(const ErrorSet& e) {
   return j;
 }
 
+nlohmann::ordered_json numbers(const std::vector<double>& v) {
+  nlohmann::ordered_json j = nlohmann::ordered_json::array();
+  for (double x : v) j.push_back(number(x));
+  return j;
+}
+
+nlohmann::ordered_json residual_map_json(const std::string& model, const ResidualMap& m) {
+  nlohmann::ordered_json o;
+  o["model"] = model;
+  o["form"] = m.form;
+  o["proposal"] = m.proposal;
+  o["loading_unloading_r2"] = number(m.loading_unloading_r2);
+  o["order_slope_sd"] = number(m.order_slope_sd);
+  o["order_slope_t"] = number(m.order_slope_t);
+  o["axes"] = nlohmann::ordered_json::array();
+  for (const auto& a : m.axes)
+    o["axes"].push_back({{"name", a.name},
+                         {"r2", number(a.r2)},
+                         {"centre", numbers(a.centre)},
+                         {"mean_sd", numbers(a.mean_sd)},
+                         {"count", numbers(a.count)}});
+  return o;
+}
+
 // The face height (contact face, lab z) per video frame: mean of the base
 // markers minus their height above the face; NaN unless all are present.
 Eigen::VectorXd face_heights(const reconstruction::Trajectories& traj, const std::vector<int>& base,
@@ -105,6 +129,8 @@ std::string diagnosis_json(const DiagnosisResult& result) {
     j["rejected"].push_back({{"stage", r.stage}, {"name", r.name}, {"reason", r.reason}});
   j["not_assessed"] = result.not_assessed;
   j["notes"] = result.notes;
+  j["residual_maps"] = nlohmann::ordered_json::array();
+  for (const auto& [model, map] : result.residual_maps) j["residual_maps"].push_back(residual_map_json(model, map));
   return j.dump(2) + "\n";
 }
 

@@ -175,6 +175,20 @@ struct PlateCorrection {
   Eigen::VectorXd apply(const Eigen::VectorXd& t_s, const Eigen::VectorXd& fz_n, double contact_time_s) const;
 };
 
+// The held-out residual's form (model_choice.h: map_residual, which fills it).
+struct ResidualAxis {
+  std::string name;
+  std::vector<double> centre, mean_sd, count;  // per bin: centre (SI), mean residual (noise SDs), samples
+  double r2 = 0.0;
+};
+struct ResidualMap {
+  std::vector<ResidualAxis> axes;  // deflection_m, deflection_rate_m_s, time_since_contact_s, recording_order
+  double loading_unloading_r2 = 0.0;  // deflection binned separately while loading and unloading
+  double order_slope_sd = 0.0, order_slope_t = 0.0;  // per-trial mean residual against recording order
+  std::string form;      // elastic, viscous, memory, trial_to_trial or none
+  std::string proposal;  // the term it calls for, one sentence
+};
+
 struct DiagnosisResult {
   std::string baseline_model;    // the mat model the loop started from, "model4"
   std::vector<Effect> effects;   // in the order they were added
@@ -192,13 +206,19 @@ struct DiagnosisResult {
   // The plate correction the force-plate stage kept (identity when none);
   // the pipeline applies it to the trial results and every fit.
   PlateCorrection plate_correction;
+  // The held-out residual's form (model_choice.h, map_residual) of the
+  // session's final models, as the pipeline maps them once the loop and
+  // Model 6 are done: model label ("closed_loop", "model4", "model6") and map.
+  std::vector<std::pair<std::string, ResidualMap>> residual_maps;
   std::string report() const;    // a few human lines
   const Effect* find(const std::string& name) const;
 };
 
 // OUT/diagnosis.json: baseline_model, effects[{stage, name, evidence,
 // error_before, error_after, estimate}], unexplained, and beyond the minimum
-// remaining[], rejected[], notes[]. NaN numbers are written as null.
+// remaining[], rejected[], notes[], residual_maps[{model, form, proposal,
+// loading_unloading_r2, order_slope_sd, order_slope_t, axes[{name, r2,
+// centre, mean_sd, count}]}]. NaN numbers are written as null.
 std::string diagnosis_json(const DiagnosisResult& result);
 
 // ---- Decision thresholds shared by the stages -----------------------------

@@ -46,18 +46,8 @@ HeldOutChoice choose_by_held_out(const std::vector<fitting::TrialData>& trials, 
 // they explain (r2). The form is the axis that explains most (at least
 // min_share); memory when deflection split into loading and unloading
 // explains more than deflection and rate alone by min_share.
-struct ResidualAxis {
-  std::string name;
-  std::vector<double> centre, mean_sd, count;  // per bin: centre (SI), mean residual (noise SDs), samples
-  double r2 = 0.0;
-};
-struct ResidualMap {
-  std::vector<ResidualAxis> axes;  // deflection_m, deflection_rate_m_s, time_since_contact_s, recording_order
-  double loading_unloading_r2 = 0.0;  // deflection binned separately while loading and unloading
-  double order_slope_sd = 0.0, order_slope_t = 0.0;  // per-trial mean residual against recording order
-  std::string form;      // elastic, viscous, memory, trial_to_trial or none
-  std::string proposal;  // the term it calls for, one sentence
-};
+// (ResidualAxis and ResidualMap are in diagnosis.h: the loop's result carries
+// the final models' maps.)
 // `reports` as the fitter returns them (simulation on the trial's samples,
 // fitted contact shift); held-out ones (train = false) are mapped, each
 // trial's recording order being the position of its id in `trials`;

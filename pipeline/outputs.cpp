@@ -171,6 +171,11 @@ void add_run_outputs(report::OutputSet& out, const SessionState& state) {
     rep.loop_unexplained = state.loop->unexplained;
     for (const auto& e : state.loop->effects)
       rep.loop_effects.push_back({e.stage, e.name, e.evidence, e.error_before, e.error_after});
+    for (const auto& [model, map] : state.loop->residual_maps) {
+      report::ResidualForm f{model, map.form, map.proposal, map.loading_unloading_r2, {}};
+      for (const auto& a : map.axes) f.axes.push_back({a.name, a.centre, a.mean_sd, a.r2});
+      rep.residual_forms.push_back(std::move(f));
+    }
   }
   rep.notes = state.notes;
   out.add("report.html", report::session_report_html(rep));

@@ -10,6 +10,7 @@
 #include "capture/io.h"
 #include "core/error.h"
 #include "core/parallel.h"
+#include "diagnosis/model_choice.h"
 #include "pipeline/outputs.h"
 #include "pipeline/wiring.h"
 
@@ -252,6 +253,21 @@ void close_loop(SessionState& state) {
     apply_model6_offsets(state);
   else if (const fitting::FitResult* final_fit = state.final_fit())
     for (auto& t : state.trials) apply_fitted_offset(t.result, *final_fit);
+  map_final_residuals(state);
+}
+
+void map_final_residuals(SessionState& state) {
+  if (!state.loop) return;
+  auto& maps = state.loop->residual_maps;
+  maps.clear();
+  // The final lumped model's held-out residual (what Model 6 is judged
+  // against), then Model 6's own when it was fitted.
+  if (const fitting::FitResult* lumped = state.final_fit()) {
+    const std::string label = state.loop->mat_fit ? "closed_loop" : fitting::model_name(lumped->model);
+    maps.emplace_back(label, diagnosis::map_residual(state.fit_data, lumped->trials));
+  }
+  if (state.model6 && state.model6->fit)
+    maps.emplace_back("model6", diagnosis::map_residual(state.fit_data, state.model6->fit->trials));
 }
 
 void apply_plate_correction(SessionState& state, const diagnosis::PlateCorrection& correction) {

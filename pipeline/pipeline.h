@@ -93,6 +93,11 @@ void analyse_trials(SessionState& state, double max_tilt_deg = 0.0,
 void fit_models(SessionState& state, const std::vector<fitting::ModelKind>& models, int threads = 1,
                 const std::function<void(const std::string&)>& say = {});
 void close_loop(SessionState& state);
+// The held-out residual of the final lumped model (and of Model 6 when it
+// was fitted) mapped against deflection, its rate, the time since contact
+// and recording order (diagnosis::map_residual) into state.loop; close_loop
+// calls it last.
+void map_final_residuals(SessionState& state);
 // Corrects every trial's force (series, peak, noise; the plate's own peak
 // kept beside it) and the fits' data by a plate gain or drift, and refits the
 // models asked on it. Nothing happens for the identity correction.

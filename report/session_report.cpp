@@ -3,7 +3,9 @@
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 
+#include <algorithm>
 #include <cmath>
+#include <iterator>
 
 #include "report/export.h"
 #include "report/html.h"
@@ -288,6 +290,53 @@ namespace {
 void loop_section(HtmlDocument& doc, const SessionReport& r) {
   if (r.loop_run) append_loop_section(doc, r.loop_baseline_model, r.loop_effects, r.loop_unexplained);
 }
+
+// The held-out residual's map: per axis, each model's binned mean residual.
+void residual_form_section(HtmlDocument& doc, const std::vector<ResidualForm>& forms) {
+  if (forms.empty()) return;
+  doc.heading("The held-out residual's form");
+  doc.paragraph(
+      "The force residual of the held-out trials (measured minus predicted, in the plate's noise SDs) binned against "
+      "the face's deflection (an elastic shape), its rate (a viscous term), the time since contact (a memory) and "
+      "each trial's place in the recording (the mat changing between trials). r2 is the share of the residual's "
+      "sum of squares the bins explain; the axis that explains most names the term the model lacks.");
+  std::vector<std::vector<std::string>> rows;
+  for (const auto& f : forms) {
+    std::vector<std::string> row{f.model, f.form, f.proposal};
+    for (const char* axis : {"deflection_m", "deflection_rate_m_s", "time_since_contact_s", "recording_order"}) {
+      const auto a = std::find_if(f.axes.begin(), f.axes.end(), [&](const auto& x) { return x.name == axis; });
+      row.push_back(a == f.axes.end() ? "-" : num(a->r2, 2));
+    }
+    row.push_back(num(f.loading_unloading_r2, 2));
+    rows.push_back(std::move(row));
+  }
+  doc.table({"model", "form", "the term it calls for", "r2 deflection", "r2 rate", "r2 time", "r2 order",
+             "r2 loading / unloading"},
+            rows, "What explains the held-out residual", 3);
+  struct AxisView {
+    const char* name;
+    const char* label;
+    double scale;
+  };
+  const AxisView views[] = {{"deflection_m", "deflection (mm)", 1e3},
+                            {"deflection_rate_m_s", "deflection rate (m/s, + loading)", 1.0},
+                            {"time_since_contact_s", "time since contact (ms)", 1e3},
+                            {"recording_order", "trial's place in the recording (0 = first)", 1.0}};
+  for (const AxisView& v : views) {
+    LinePlot plot{fmt::format("Held-out residual against {}", v.label), v.label, "mean residual (noise SDs)", {}, 640, 300};
+    for (size_t k = 0; k < forms.size(); ++k)
+      for (const auto& a : forms[k].axes) {
+        if (a.name != v.name || a.centre.empty()) continue;
+        LineSeries s{fmt::format("{} (r2 {:.2f})", forms[k].model, a.r2), {}, a.mean_sd,
+                     kModelColours[k % std::size(kModelColours)]};
+        for (double c : a.centre) s.x.push_back(c * v.scale);
+        s.points = a.name == "recording_order";
+        plot.series.push_back(std::move(s));
+      }
+    if (!plot.series.empty())
+      doc.figure(svg(plot), fmt::format("Binned mean held-out force residual against {}.", v.label));
+  }
+}
 }  // namespace
 
 std::string session_report_html(const SessionReport& r) {
@@ -310,6 +359,7 @@ std::string session_report_html(const SessionReport& r) {
   trials_section(doc, r);
   parameters_section(doc, r);
   loop_section(doc, r);
+  residual_form_section(doc, r.residual_forms);
   return doc.str();
 }
 

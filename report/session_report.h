@@ -21,6 +21,19 @@ struct LoopEffect {  // one effect closing the loop added
   std::vector<std::pair<std::string, double>> error_before, error_after;
 };
 
+// The held-out residual of one final model mapped against the states that
+// tell an elastic shape from a viscous one or a memory (the loop's map).
+struct ResidualForm {
+  struct Axis {
+    std::string name;                    // deflection_m, deflection_rate_m_s, time_since_contact_s, recording_order
+    std::vector<double> centre, mean_sd;  // per bin (SI; recording order: the trial's place), mean residual in noise SDs
+    double r2 = 0.0;                     // share of the residual's sum of squares the bins explain
+  };
+  std::string model, form, proposal;
+  double loading_unloading_r2 = 0.0;
+  std::vector<Axis> axes;
+};
+
 struct SessionReport {
   std::string session_name;
   std::string session_path;
@@ -39,6 +52,7 @@ struct SessionReport {
   std::string loop_baseline_model;
   std::vector<LoopEffect> loop_effects;
   bool loop_unexplained = false;
+  std::vector<ResidualForm> residual_forms;   // the final models' held-out residual maps
   std::vector<std::string> notes;             // anything the reader must know (failures, warnings)
 };
 

@@ -97,6 +97,25 @@ void check_model6_final(const fs::path& dir, const Tolerance& tol) {
   EXPECT_NE(fj["mjcf_note"].get<std::string>().find("no MJCF"), std::string::npos);
   EXPECT_EQ(fj["estimates"].size(), 14u);
   EXPECT_TRUE(fj["choice"]["chosen"].get<bool>());
+
+  // The held-out residual mapped for both candidates (the lumped final model
+  // first, Model 6 second) in diagnosis.json and the report: on a foam the
+  // lumped model's residual has a form (one state explains at least the
+  // map's 30 % share), never "none".
+  ASSERT_NE(file("diagnosis.json"), nullptr);
+  const json dj = json::parse(*file("diagnosis.json"));
+  ASSERT_EQ(dj["residual_maps"].size(), 2u);
+  EXPECT_EQ(dj["residual_maps"][1]["model"], "model6");
+  const json& lumped = dj["residual_maps"][0];
+  EXPECT_NE(lumped["form"], "none") << lumped["proposal"];
+  double best_r2 = 0.0;
+  for (const auto& a : lumped["axes"])
+    if (a["name"] != "recording_order") best_r2 = std::max(best_r2, a["r2"].get<double>());
+  EXPECT_GE(best_r2, 0.3);
+  const std::string& html = *file("report.html");
+  EXPECT_NE(html.find("The held-out residual's form"), std::string::npos);
+  EXPECT_NE(html.find("Held-out residual against deflection (mm)"), std::string::npos);
+  EXPECT_NE(html.find("Held-out residual against time since contact (ms)"), std::string::npos);
 }
 
 void check_not_triggered(const fs::path& dir) {

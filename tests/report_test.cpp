@@ -161,3 +161,32 @@ TEST(SessionReportHtml, SaysWhenTheCalibrationTermIsDeclared) {
   r.trials[0].calibration_uncertainty = "check markers";
   EXPECT_EQ(session_report_html(r).find("Impact velocity intervals:"), std::string::npos);
 }
+
+// The held-out residual's map: one row per model naming its form and the
+// term it calls for with each axis's r2, one figure per axis with a series
+// per model; nothing without maps.
+TEST(SessionReportHtml, ShowsTheHeldOutResidualMap) {
+  SessionReport r;
+  r.session_name = "s";
+  EXPECT_EQ(session_report_html(r).find("The held-out residual's form"), std::string::npos);
+  ResidualForm f{"closed_loop", "elastic", "a densification term", 0.12, {}};
+  f.axes.push_back({"deflection_m", {0.01, 0.02, 0.03}, {-1.0, 0.5, 4.0}, 0.62});
+  f.axes.push_back({"deflection_rate_m_s", {-1.0, 1.0}, {0.1, -0.1}, 0.05});
+  f.axes.push_back({"time_since_contact_s", {0.005, 0.015}, {0.3, 0.2}, 0.08});
+  f.axes.push_back({"recording_order", {0, 1, 3}, {0.2, 0.1, 0.0}, 0.4});
+  ResidualForm g = f;
+  g.model = "model6";
+  g.form = "none";
+  r.residual_forms = {f, g};
+  const std::string html = session_report_html(r);
+  EXPECT_NE(html.find("<td>closed_loop</td><td>elastic</td><td>a densification term</td><td class=\"num\">0.62</td>"
+                      "<td class=\"num\">0.05</td><td class=\"num\">0.08</td><td class=\"num\">0.40</td>"
+                      "<td class=\"num\">0.12</td>"),
+            std::string::npos);
+  EXPECT_NE(html.find("<td>model6</td><td>none</td>"), std::string::npos);
+  for (const char* axis : {"deflection (mm)", "deflection rate (m/s, + loading)", "time since contact (ms)",
+                           "trial's place in the recording (0 = first)"})
+    EXPECT_NE(html.find(std::string("Held-out residual against ") + axis), std::string::npos) << axis;
+  EXPECT_NE(html.find("closed_loop (r2 0.62)"), std::string::npos);
+  EXPECT_NE(html.find("model6 (r2 0.62)"), std::string::npos);
+}
