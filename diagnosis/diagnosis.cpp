@@ -152,6 +152,8 @@ std::vector<PlateTrial> plate_trials(const SessionData& state, double offset_s) 
     // The mat top the cameras see (trial.h: contact height), as the face is.
     p.mat_top_z_m = std::isfinite(tr.result.contact_height_m) ? tr.result.contact_height_m : state.mat_top_z_m;
     p.max_deformation_time_s = tr.result.max_deformation_time_s;
+    p.fall_accel_m_s2 = tr.result.fall_accel_m_s2;
+    p.fall_accel_se_m_s2 = tr.result.fall_accel_se_m_s2;
     const Eigen::VectorXd z = face_heights(tr.trajectories, state.base_markers, state.base_marker_height_m);
     p.face_z_m = z;
     p.video_t_s.resize(z.size());
@@ -352,6 +354,7 @@ DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& optio
     ForceplateStageOptions fo = options.forceplate_stage;
     fo.impactor_mass_kg = state.impactor_mass_kg;
     fo.gravity_m_s2 = state.gravity_m_s2;
+    fo.frame_rate_hz = state.frame_rate_hz;
     if (!plates.empty()) {
       plate = diagnose_forceplate(plates, fo);
       correction = plate->correction;

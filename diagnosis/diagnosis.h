@@ -302,6 +302,9 @@ struct PlateTrial {
   Eigen::VectorXd video_t_s, face_z_m;  // contact face height, force clock; NaN gaps
   double mat_top_z_m = std::numeric_limits<double>::quiet_NaN();  // undeformed mat top (lab z)
   double max_deformation_time_s = std::numeric_limits<double>::quiet_NaN();  // force clock
+  // The video's free fall before contact, acceleration free (trial.h).
+  double fall_accel_m_s2 = std::numeric_limits<double>::quiet_NaN();
+  double fall_accel_se_m_s2 = std::numeric_limits<double>::quiet_NaN();
 };
 
 
@@ -349,6 +352,7 @@ struct ForceplateStageOptions {
   double still_sd_factor = 3.0;    //   this many noise SDs
   double settle_s = 0.030;         // after the contact's end before stillness is sought
   double min_scale_error = 0.01;   // gain errors below 1 % are not worth a correction
+  double frame_rate_hz = 0.0;      // the declared video rate (named when the time base is wrong)
 };
 
 struct ForceplateDiagnosis {

@@ -477,6 +477,28 @@ void diagnose_baseline_drift(const std::vector<PlateTrial>& trials, const Forcep
   }
 }
 
+// The trials' free fall before contact over gravity: the inverse-variance
+// mean of a / g and its SE (scatter beyond the stated SEs included).
+struct FallCheck {
+  double ratio = std::numeric_limits<double>::quiet_NaN(), se = std::numeric_limits<double>::quiet_NaN();
+  int n = 0;
+};
+FallCheck mean_fall(const std::vector<PlateTrial>& trials, double gravity_m_s2) {
+  double sw = 0.0, swx = 0.0, swx2 = 0.0;
+  FallCheck f;
+  for (const auto& t : trials) {
+    if (!std::isfinite(t.fall_accel_m_s2) || !(t.fall_accel_se_m_s2 > 0.0)) continue;
+    const double x = t.fall_accel_m_s2 / gravity_m_s2, w = std::pow(gravity_m_s2 / t.fall_accel_se_m_s2, 2);
+    sw += w, swx += w * x, swx2 += w * x * x;
+    ++f.n;
+  }
+  if (f.n == 0) return f;
+  f.ratio = swx / sw;
+  const double chi2_dof = f.n > 1 ? std::max((swx2 - swx * swx / sw) / (f.n - 1), 1.0) : 1.0;
+  f.se = std::sqrt(chi2_dof / sw);
+  return f;
+}
+
 // force_scale (diagnosis.h): the plate's impulse against the video's
 // momentum over trials, with the drift correction found so far.
 void diagnose_force_scale(const std::vector<PlateTrial>& trials, const ForceplateStageOptions& o,
@@ -547,6 +569,34 @@ void diagnose_force_scale(const std::vector<PlateTrial>& trials, const Forceplat
         "cannot tell a plate gain from a wrong declared mass: weigh the impactor, or check the plate's calibration)",
         gain * o.impactor_mass_kg, o.impactor_mass_kg);
     e.estimate.push_back({"impactor_mass_if_gain_is_1_kg", gain * o.impactor_mass_kg});
+    // A third cause the fall itself tells apart: a video time base off by
+    // f / f0 reads every video velocity x f / f0 (so the balance reads a
+    // gain near f0 / f) and the free fall x (f / f0)^2, where a plate gain or
+    // a wrong mass leaves the fall at g. A fall off g in the direction the
+    // balance points names the time base (and the rate that makes the fall
+    // free); then nothing is corrected, the velocities being wrong.
+    const FallCheck fall = mean_fall(trials, o.gravity_m_s2);
+    if (fall.n > 0) {
+      const bool at_g = std::abs(fall.ratio - 1.0) <= 3.0 * fall.se + 0.01;
+      if (!at_g && (fall.ratio < 1.0) == (gain > 1.0)) {
+        out.remaining.push_back(
+            {"forceplate", "video_time_base",
+             fmt::format("the plate's impulse is {:.1f} % {} the video's momentum (ratio {:.4f} +- {:.4f}) and the "
+                         "video's free fall is {:.4f} +- {:.4f} g: a video time base that is off makes both (the "
+                         "velocities x f / f0, the fall x (f / f0)^2); a plate gain or a wrong mass would leave the "
+                         "fall at 1 g, a guide's friction would slow the fall but not move the impulse. The declared "
+                         "[video] frame_rate_hz = {:g} Hz would be {:.0f} Hz for a free fall; every impact velocity "
+                         "and video time is off with it, so nothing is corrected",
+                         100.0 * std::abs(gain - 1.0), gain > 1.0 ? "above" : "below", gain, se, fall.ratio,
+                         fall.se, o.frame_rate_hz, o.frame_rate_hz / std::sqrt(fall.ratio))});
+        return;
+      }
+      e.estimate.push_back({"fall_over_gravity", fall.ratio});
+      e.estimate.push_back({"fall_over_gravity_se", fall.se});
+      e.evidence += fmt::format("; the video's free fall is {:.4f} +- {:.4f} g over {} trials, so the video's time "
+                                "base is not the cause",
+                                fall.ratio, fall.se, fall.n);
+    }
     out.effects.push_back(std::move(e));
     out.correction.gain = gain;
   } else if (stands_out) {

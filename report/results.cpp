@@ -193,6 +193,8 @@ std::string trial_json(const trial::TrialResult& r, const TrialSource* source) {
               {"end_time_s", number_or_null(r.end_time_s)},
               {"freefall_rms_m", number_or_null(r.freefall_rms_m)},
               {"freefall_frames", r.freefall_frames},
+              {"fall_accel_m_s2", number_or_null(r.fall_accel_m_s2)},
+              {"fall_accel_se_m_s2", number_or_null(r.fall_accel_se_m_s2)},
               {"impulse_ratio", number_or_null(r.impulse_ratio)}};
   if (!r.force_correction.empty()) {
     doc["force_correction"] = r.force_correction;

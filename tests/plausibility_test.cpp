@@ -98,6 +98,38 @@ TEST_F(Plausibility, WrongFrameRateRejectsByVideoAgainstForceVelocity) {
   expect_all_rejected(run(), "impact velocity [0-9.]+ m/s from video against [0-9.e+-]+ m/s from the force impulse");
 }
 
+// A 1000 Hz video declared at 1050 Hz: the face falls at 9.81 x 1.05^2
+// m/s^2 in every trial, rejected naming the rate that makes the fall free
+// (the impulse gate alone lets a 5 % velocity error through).
+TEST_F(Plausibility, FrameRateFivePercentHighRejectsByTheFreeFall) {
+  edit("session.toml", "frame_rate_hz = 1000.0", "frame_rate_hz = 1050.0");
+  expect_all_rejected(run(), "the impactor falls at 10\\.[6-9][0-9] \\+- 0\\.[0-9]+ m/s\\^2 .*frame_rate_hz = 1050 Hz "
+                             "would have to be (99[5-9]|100[0-5]) Hz for a free fall");
+}
+
+// Declared at 960 Hz (4 % low): the fall is 8 % slow, inside what a guide's
+// friction could do, so the trials stand; but the impulse balance reads 3 %
+// high in the direction the fall points, which a plate gain or a wrong mass
+// cannot do: the loop names the video's time base (and the rate that makes
+// the fall free), corrects nothing and leaves the session unexplained.
+TEST_F(Plausibility, FrameRateFourPercentLowIsNamedAsTheVideoTimeBase) {
+  edit("session.toml", "frame_rate_hz = 1000.0", "frame_rate_hz = 960.0");
+  const CliRun r = run_dropfit({"diagnose", session().string(), "--out", out().string()}, dir_.path());
+  ASSERT_EQ(r.exit_code, 0) << r.describe();
+  const auto d = nlohmann::json::parse(read_text(out() / "diagnosis.json"));
+  EXPECT_TRUE(d["unexplained"].get<bool>());
+  bool named = false;
+  for (const auto& x : d["remaining"])
+    if (x["name"] == "video_time_base") {
+      named = true;
+      EXPECT_TRUE(std::regex_search(x["description"].get<std::string>(),
+                                    std::regex("frame_rate_hz = 960 Hz would be (99[5-9]|100[0-5]) Hz")))
+          << x.dump();
+    }
+  EXPECT_TRUE(named) << d.dump(1);
+  for (const auto& e : d["effects"]) EXPECT_NE(e["name"], "force_scale") << e.dump();
+}
+
 // The mat top mistyped 20 mm high (0.225 for 0.205 m): the surface markers
 // rest 20 mm below it, so either the manifest or the markers are wrong and
 // every trial says so, naming both; 8 mm off (beyond the 5 mm within which

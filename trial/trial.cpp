@@ -297,6 +297,17 @@ FreeFallFit free_fall_before(const Eigen::VectorXd& h, int crossing, const Video
     const double dh = std::isfinite(res.contact_height_se_m) ? res.contact_height_se_m / ff.contact_speed_m_s : 0.0;
     res.video_contact_time_se_s = std::hypot(ff.contact_time_se_s, dh);
     res.freefall_rms_m = ff.rms_m;
+    // The fall's own acceleration over a longer stretch (never back to a
+    // release from rest at this speed) against gravity.
+    const double span = std::min(o.fall_check_window_s, 0.8 * ff.contact_speed_m_s / o.gravity_m_s2);
+    ts.clear(), zs.clear();
+    for (int i = crossing - 1; i >= 0 && clock.time(i) >= t_cross - span; --i)
+      if (std::isfinite(h[i]) && h[i] >= top + o.freefall_clearance_m) ts.push_back(clock.time(i)), zs.push_back(h[i]);
+    const FallAcceleration fall = fit_fall_acceleration(Eigen::Map<Eigen::VectorXd>(ts.data(), std::ssize(ts)),
+                                                        Eigen::Map<Eigen::VectorXd>(zs.data(), std::ssize(zs)));
+    res.fall_accel_m_s2 = fall.accel_m_s2;
+    res.fall_accel_se_m_s2 = fall.se_m_s2;
+    if (std::string r = fall_acceleration_reason(fall, o); !r.empty()) reasons.push_back(std::move(r));
   }
   return ff;
 }
@@ -762,6 +773,10 @@ void TrialOptions::validate() const {
   check::non_negative(w, "mat_mass_kg", mat_mass_kg);
   check::positive(w, "impulse_tolerance", impulse_tolerance);
   check::positive(w, "max_spike_fraction", max_spike_fraction);
+  check::positive(w, "fall_check_window_s", fall_check_window_s);
+  check::non_negative(w, "fall_accel_excess", fall_accel_excess);
+  check::in_range(w, "fall_accel_deficit", fall_accel_deficit, 0.0, 1.0);
+  check::positive(w, "fall_accel_sigma", fall_accel_sigma);
 }
 
 double FreeFallFit::height_at(double t_s, double gravity_m_s2) const {

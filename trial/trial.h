@@ -128,6 +128,20 @@
 //   restitution J / (M v_in) - 1 must lie in [0, 1], with the same
 //   tolerance. A negative impulse or one beyond twice the momentum is
 //   impossible.
+// - Free fall against gravity: the face heights over the fall before
+//   contact (up to fall_check_window_s, and never before 0.8 v / g, where
+//   a drop from rest at the contact speed v would have been released),
+//   fitted with the acceleration free, must fall at g: air drag on the
+//   impactor is under 1 % of its weight at 6 m/s, a guide's friction can only
+//   slow it. An apparent acceleration above g (1 + fall_accel_excess) or
+//   below g (1 - fall_accel_deficit) by more than fall_accel_sigma SEs
+//   rejects the trial naming what scales it: the video's time base (a
+//   declared frame rate f reads a true one f0 as a = g (f / f0)^2, so the
+//   rate that makes the fall free is given), the calibration's length scale
+//   (a = g x scale), or the declared gravity. A 5 % frame-rate error is 10 %
+//   of acceleration; the velocity (x f / f0) and every clock-derived number
+//   would be off with nothing else to show it, since the force impulse gate
+//   allows the mat's momentum.
 // - Reprojection and calibration: apply_calibration_gates() (below), given
 //   the calibration's own quality, rejects a trial whose markers' median
 //   reprojection residual is far above what the calibration achieved, and
@@ -170,6 +184,10 @@ struct TrialOptions {
   double mat_mass_kg = 0.0;               // all layers; bounds the mat's share of the plate impulse
   double impulse_tolerance = 0.15;        // force scale (a few %) and velocity CI (~1-3 %), generously
   double max_spike_fraction = 0.15;       // of the median-filtered contact peak
+  double fall_check_window_s = 0.250;     // free fall the acceleration check reads (see above)
+  double fall_accel_excess = 0.03;        // above g: nothing but a wrong time base or scale
+  double fall_accel_deficit = 0.15;       // below g: a guide's friction allowed
+  double fall_accel_sigma = 4.0;
 
   // Throws dropfit::Error naming the field and value when one is out of
   // range (NaN, a non-positive rate or mass, a negative window, a zero
@@ -204,6 +222,22 @@ struct FreeFallFit {
 // fewer than 3 points or the path never reaches the height.
 FreeFallFit fit_free_fall(const Eigen::VectorXd& t_s, const Eigen::VectorXd& z_m, double gravity_m_s2,
                           double contact_height_m, double t_ref_s);
+
+// The free fall's own acceleration: z = z0 + v0 t - a t^2 / 2 fitted with
+// a free (least squares, one pass dropping residuals beyond 4 robust SDs);
+// ok = false with fewer than four points or a degenerate span.
+struct FallAcceleration {
+  bool ok = false;
+  double accel_m_s2 = std::numeric_limits<double>::quiet_NaN();  // downward
+  double se_m_s2 = std::numeric_limits<double>::quiet_NaN();
+  int n_frames = 0;
+  double span_s = 0.0;
+};
+FallAcceleration fit_fall_acceleration(const Eigen::VectorXd& t_s, const Eigen::VectorXd& z_m);
+// The gate's verdict (see "Free fall against gravity"): empty when the fall
+// is consistent with options.gravity_m_s2, else the reason naming the
+// frame rate that would make it free.
+std::string fall_acceleration_reason(const FallAcceleration& fall, const TrialOptions& options);
 
 // The second synchronisation estimate's core (video_offset_trajectory_s; the
 // loop runs it on a simulated impact for its bias, diagnosis::
@@ -283,6 +317,9 @@ struct TrialResult {
   double end_time_s = std::numeric_limits<double>::quiet_NaN();                 // force clock
   double freefall_rms_m = std::numeric_limits<double>::quiet_NaN();
   int freefall_frames = 0;
+  // The fall's own acceleration (the check against gravity) and its SE.
+  double fall_accel_m_s2 = std::numeric_limits<double>::quiet_NaN();
+  double fall_accel_se_m_s2 = std::numeric_limits<double>::quiet_NaN();
   double impulse_ratio = std::numeric_limits<double>::quiet_NaN();
   double force_noise_n = std::numeric_limits<double>::quiet_NaN();  // Fz SD in the quiet pre-trigger part
   double velocity_from_impulse_m_s = std::numeric_limits<double>::quiet_NaN();  // impulse to max deformation / M
