@@ -577,10 +577,22 @@ DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& optio
 //   others' scatter. The plate's gain and the declared mass move every
 //   trial alike (the loop's force_scale names them); one trial alone off
 //   has a fault of its own (a channel, a second impact, a frame count).
+// - every accepted trial when the clock offsets (video contact minus plate
+//   onset) change with 1 / impact speed: offset = c + dh / v, where a clock
+//   offset is c alone and a contact height off by dh (the face height's
+//   base_marker_height_m, the mat top) adds dh / v. |dh| beyond
+//   max(min_height_error_m, height_sd_factor SE) rejects them naming both
+//   heights. Before any fit the offsets are the plate-onset ones, whose lag
+//   varies with speed on a mat with mass (on the shared validation sessions
+//   |dh| up to 5.5 mm at SEs of 2.5-6 mm), so the floor is the 15 mm within
+//   which the cameras' and the manifest's mat tops may disagree (trial.h):
+//   a base marker height declared 50 mm off reads 45.5 +- 5.7 mm.
 // The pipeline calls it after building the state and before fitting.
 struct ScreenOptions {
   double min_tolerance = 0.03;
   double sd_factor = 4.0;
+  double min_height_error_m = 0.015;
+  double height_sd_factor = 4.0;
 };
 struct ScreenResult {
   struct Rejection {

@@ -105,12 +105,56 @@ void reject_impulse_outliers(SessionData& state, const ScreenOptions& o, ScreenR
   }
 }
 
+// The trials' clock offsets (video contact instant minus plate onset)
+// against 1 / impact speed: a clock offset is the same in every trial, but
+// a face height or mat top that is off by dh moves each trial's video
+// contact by dh / v. The slope is that height error.
+void reject_height_inconsistency(SessionData& state, const ScreenOptions& o, ScreenResult& out) {
+  std::vector<std::size_t> idx;
+  std::vector<double> x, y;
+  for (std::size_t i = 0; i < state.trials.size(); ++i) {
+    const trial::TrialResult& r = state.trials[i].result;
+    if (!r.accepted || !std::isfinite(r.video_offset_s) || !(r.impact_velocity_m_s > 0.0)) continue;
+    idx.push_back(i);
+    x.push_back(1.0 / r.impact_velocity_m_s);
+    y.push_back(r.video_offset_s);
+  }
+  const auto n = static_cast<double>(x.size());
+  if (x.size() < 3) return;
+  double mx = 0.0, my = 0.0;
+  for (std::size_t k = 0; k < x.size(); ++k) mx += x[k] / n, my += y[k] / n;
+  double sxx = 0.0, sxy = 0.0;
+  for (std::size_t k = 0; k < x.size(); ++k) sxx += (x[k] - mx) * (x[k] - mx), sxy += (x[k] - mx) * (y[k] - my);
+  if (!(sxx > 0.0)) return;
+  const double dh = sxy / sxx, c = my - dh * mx;
+  double rss = 0.0;
+  for (std::size_t k = 0; k < x.size(); ++k) rss += std::pow(y[k] - c - dh * x[k], 2);
+  const double se = std::sqrt(rss / (n - 2.0) / sxx);
+  if (std::abs(dh) <= std::max(o.min_height_error_m, o.height_sd_factor * se)) return;
+  const trial::TrialResult& first = state.trials[idx.front()].result;
+  const double markers_vs_declared = first.surface_rest_z_m - state.mat_top_z_m;
+  const std::string surface =
+      std::isfinite(markers_vs_declared)
+          ? fmt::format("; the surface markers rest {:+.1f} mm from the declared mat top", 1e3 * markers_vs_declared)
+          : "";
+  const std::string reason = fmt::format(
+      "the trials' clock offsets change with 1 / impact speed as a contact height {:.1f} +- {:.1f} mm off makes them "
+      "(offset {:.2f} ms common to all, plus {:+.1f} mm / v; a clock offset is the same in every trial): the face "
+      "reaches the mat top {:.1f} mm {} the plate feels it, so the face height (base markers less [impactor] "
+      "base_marker_height_m = {:.4g} m) or [forceplate] mat_top_z_m = {:.4g} m is wrong{}; the impact velocity, "
+      "deformation and clock offset all depend on it",
+      dh * 1e3, se * 1e3, 1e3 * c, dh * 1e3, std::abs(dh) * 1e3, dh < 0.0 ? "before" : "after",
+      state.base_marker_height_m, state.mat_top_z_m, surface);
+  for (std::size_t i : idx) reject(state, i, reason, out);
+}
+
 }  // namespace
 
 ScreenResult screen_trials(SessionData& state, const ScreenOptions& options) {
   ScreenResult out;
   reject_duplicates(state, out);
   reject_impulse_outliers(state, options, out);
+  reject_height_inconsistency(state, options, out);
   return out;
 }
 

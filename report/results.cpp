@@ -184,6 +184,7 @@ std::string trial_json(const trial::TrialResult& r, const TrialSource* source) {
               {"time_to_peak_s", number_or_null(r.time_to_peak_s)},
               {"contact_time_s", number_or_null(r.contact_time_s)},
               {"contact_height_m", number_or_null(r.contact_height_m)},
+              {"surface_rest_z_m", number_or_null(r.surface_rest_z_m)},
               {"video_offset_s", number_or_null(r.video_offset_s)},
               {"video_offset_se_s", number_or_null(r.video_offset_se_s)},
               {"video_offset_onset_s", number_or_null(r.video_offset_onset_s)},

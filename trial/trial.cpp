@@ -580,8 +580,9 @@ void impulse_checks(const forceplate::ForceTrial& force, const TrialOptions& o, 
       !(std::abs(res.impulse_ratio - 1.0) <= tol)) {
     reasons.push_back(fmt::format(
         "impact velocity {:.3f} m/s from video against {:.3g} m/s from the force impulse to maximum deformation "
-        "(ratio {:.3g}, physically within {:.2f}-{:.2f}): check [video].frame_rate_hz, [impactor].mass_kg and the "
-        "force scale",
+        "(ratio {:.3g}, physically within {:.2f}-{:.2f}): check [video].frame_rate_hz, [impactor].mass_kg, the "
+        "force scale and the contact face's height ([impactor].base_marker_height_m, [forceplate].mat_top_z_m: "
+        "they place the contact instant the impulse starts from)",
         res.impact_velocity_m_s, res.velocity_from_impulse_m_s, res.impulse_ratio, 1.0 - tol, 1.0 + tol));
   }
   if (std::isfinite(res.impact_velocity_m_s) && force.end_found &&
@@ -635,6 +636,7 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
   TrialOptions o = given;
   double rest_se_m = kNaN;
   const double rest = surface_rest_height_m(h, surf, given, &rest_se_m);
+  res.surface_rest_z_m = rest;
   if (std::abs(rest - given.mat_top_z_m) <= given.max_surface_reference_m) {
     o.mat_top_z_m = rest;
     res.contact_height_se_m = rest_se_m;

@@ -282,6 +282,7 @@ struct TrialResult {
   double time_to_peak_s = std::numeric_limits<double>::quiet_NaN();  // from contact
   double contact_time_s = std::numeric_limits<double>::quiet_NaN();  // force clock
   double contact_height_m = std::numeric_limits<double>::quiet_NaN();  // the mat top used (see above)
+  double surface_rest_z_m = std::numeric_limits<double>::quiet_NaN();  // the surface markers at rest (NaN: not seen)
   double video_offset_s = std::numeric_limits<double>::quiet_NaN();  // video clock minus force clock
   // When the mat fit placed the contact on the force clock (the main run):
   // its standard error, and the estimate from the plate's onset it replaced.
