@@ -25,7 +25,7 @@ void add_diagnose(CLI::App& app, CommandContext& /*ctx*/) {
     pipeline::BuildOptions options;
     options.models = {fitting::ModelKind::Model4};
     const pipeline::SessionState state = pipeline::build(args->session, options);
-    for (const auto& note : state.notes) fmt::print("note: {}\n", note);
+    for (const auto& note : state.all_notes()) fmt::print("note: {}\n", note);
     if (!state.loop) throw dropfit::Error(fmt::format("{}: the loop could not run (see the notes above)", args->session));
     report::OutputSet out;
     out.add("diagnosis.json", diagnosis::diagnosis_json(*state.loop));

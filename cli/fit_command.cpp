@@ -54,7 +54,7 @@ void add_fit(CLI::App& app, CommandContext& /*ctx*/) {
     build.models = {fitting::ModelKind::Model4};
     const pipeline::SessionState state = pipeline::build(args->session, build);
     if (state.accepted() == 0) throw Error(fmt::format("{}: no accepted trial to fit ({})", args->session,
-                                                      fmt::join(state.notes, "; ")));
+                                                      fmt::join(state.all_notes(), "; ")));
     report::OutputSet out;
     const auto models = models_from(args->model);
     for (const auto model : models) {

@@ -177,7 +177,7 @@ void add_run_outputs(report::OutputSet& out, const SessionState& state) {
       rep.residual_forms.push_back(std::move(f));
     }
   }
-  rep.notes = state.notes;
+  rep.notes = state.all_notes();
   out.add("report.html", report::session_report_html(rep));
 }
 

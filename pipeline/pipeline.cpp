@@ -51,6 +51,14 @@ const fitting::Model6FitResult* SessionState::final_model6() const {
   return model6 && model6->chosen && model6->fit ? &*model6->fit : nullptr;
 }
 
+std::vector<std::string> SessionState::all_notes() const {
+  const auto at = notes.begin() + static_cast<std::ptrdiff_t>(std::min(fit_notes_at, notes.size()));
+  std::vector<std::string> all(notes.begin(), at);
+  all.insert(all.end(), fit_notes.begin(), fit_notes.end());
+  all.insert(all.end(), at, notes.end());
+  return all;
+}
+
 std::string SessionState::final_label() const {
   if (final_model6()) return "model6";
   if (loop && loop->mat_fit) return "closed_loop";
@@ -156,17 +164,14 @@ void fit_models(SessionState& state, const std::vector<fitting::ModelKind>& mode
   require(state, Stage::Trials, "fitting");
   // A refit (e.g. on plate-corrected force) replaces the earlier fits: their
   // warnings and failures go with them.
-  for (const fitting::ModelKind m : state.models_asked) {
-    const std::string name = fitting::model_name(m);
-    std::erase_if(state.notes, [&](const std::string& note) {
-      return note.rfind(name + ": ", 0) == 0 || note.rfind(name + " fit failed: ", 0) == 0;
-    });
-  }
+  state.fit_notes.clear();
+  state.fit_notes_at = state.notes.size();
+  state.failed_fits = 0;
   state.models_asked = models;
   state.fits.clear();
   state.reached = Stage::Fits;
   if (state.accepted() == 0) {
-    state.notes.push_back("no accepted trial: nothing to fit");
+    state.fit_notes.push_back("no accepted trial: nothing to fit");
     return;
   }
   const Manifest& manifest = state.session.manifest;
@@ -219,11 +224,11 @@ void fit_models(SessionState& state, const std::vector<fitting::ModelKind>& mode
   for (std::size_t k = 0; k < models.size(); ++k) {
     const auto name = fitting::model_name(models[k]);
     if (!fits[k]) {
-      state.notes.push_back(fmt::format("{} fit failed: {}", name, errors[k]));
+      state.fit_notes.push_back(fmt::format("{} fit failed: {}", name, errors[k]));
       ++state.failed_fits;
       continue;
     }
-    for (const auto& w : fits[k]->warnings) state.notes.push_back(name + ": " + w);
+    for (const auto& w : fits[k]->warnings) state.fit_notes.push_back(name + ": " + w);
     state.fits.push_back(std::move(*fits[k]));
   }
 }
@@ -344,7 +349,7 @@ RunSummary summarise(const SessionState& state) {
   s.accepted = state.accepted();
   s.failed_fits = state.failed_fits;
   s.final_model = state.final_fit() != nullptr;
-  s.notes = state.notes;
+  s.notes = state.all_notes();
   return s;
 }
 

@@ -51,8 +51,14 @@ struct SessionState : diagnosis::SessionData {
   std::optional<diagnosis::DiagnosisResult> loop;  // when the loop ran
   // Model 6 when the loop's final model did not reach the noise (model6_stage.h).
   std::optional<Model6Stage> model6;
-  std::vector<std::string> notes;  // failed fits, fit warnings, stages that could not run
+  std::vector<std::string> notes;  // rejected trials, stages that could not run, corrections made
+  // The current fits' own notes (failed fits, fit warnings), held apart so a
+  // refit replaces them; fit_notes_at is where they fall among `notes`.
+  std::vector<std::string> fit_notes;
+  std::size_t fit_notes_at = 0;
   int failed_fits = 0;
+  // Every note in the order the stages made them (the fits' at fit_notes_at).
+  std::vector<std::string> all_notes() const;
 
   int accepted() const;
   // The final lumped model: the closed loop's fit when the loop kept mat

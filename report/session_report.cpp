@@ -326,11 +326,10 @@ void residual_form_section(HtmlDocument& doc, const std::vector<ResidualForm>& f
     LinePlot plot{fmt::format("Held-out residual against {}", v.label), v.label, "mean residual (noise SDs)", {}, 640, 300};
     for (size_t k = 0; k < forms.size(); ++k)
       for (const auto& a : forms[k].axes) {
-        if (a.name != v.name || a.centre.empty()) continue;
+        if (a.name != v.name || a.centre.size() < 2) continue;  // a line needs two bins
         LineSeries s{fmt::format("{} (r2 {:.2f})", forms[k].model, a.r2), {}, a.mean_sd,
                      kModelColours[k % std::size(kModelColours)]};
         for (double c : a.centre) s.x.push_back(c * v.scale);
-        s.points = a.name == "recording_order";
         plot.series.push_back(std::move(s));
       }
     if (!plot.series.empty())

@@ -164,11 +164,11 @@ TEST(ValidationUpstream, PlateCorrectionRefitKeepsOneSetOfFitNotes) {
   const pipeline::SessionState state = pipeline::build(validation("v6-formats-drift-scale"), options);
   ASSERT_TRUE(state.loop.has_value());
   int corrected = 0, fit_notes = 0;
-  for (std::size_t i = 0; i < state.notes.size(); ++i) {
-    const std::string& note = state.notes[i];
+  const std::vector<std::string> notes = state.all_notes();
+  for (const std::string& note : notes) {
     corrected += note.find("every trial's force and every fit") != std::string::npos ? 1 : 0;
     if (note.rfind("model4: ", 0) == 0 || note.rfind("model2: ", 0) == 0) ++fit_notes;
-    EXPECT_EQ(std::count(state.notes.begin(), state.notes.end(), note), 1) << note;
+    EXPECT_EQ(std::count(notes.begin(), notes.end(), note), 1) << note;
   }
   EXPECT_EQ(corrected, 1);
   // The refit Model 2 and 4 warn of their weakly pinned parameters (as a

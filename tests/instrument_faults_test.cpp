@@ -286,7 +286,7 @@ TEST(InstrumentFaults, TrialWithoutContactIsLeftOutOfEveryFit) {
   EXPECT_TRUE(contains(r.state.trials[2].result.reject_reason, "no trigger")) << r.reasons();
   EXPECT_FALSE(r.state.fit_data[2].accepted);
   pipeline::fit_models(r.state, {fitting::ModelKind::Model1, fitting::ModelKind::Model4});
-  EXPECT_EQ(r.state.fits.size(), 2u) << fmt::format("{}", fmt::join(r.state.notes, "\n"));
+  EXPECT_EQ(r.state.fits.size(), 2u) << fmt::format("{}", fmt::join(r.state.all_notes(), "\n"));
   for (const auto& fit : r.state.fits)
     for (const auto& t : fit.trials) EXPECT_NE(t.id, "trial3");
 }
