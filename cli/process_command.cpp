@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 
 #include "cli/command.h"
+#include "core/error.h"
 #include "core/progress.h"
 #include "pipeline/outputs.h"
 #include "pipeline/pipeline.h"
@@ -44,6 +45,11 @@ void add_process(CLI::App& app, CommandContext& /*ctx*/) {
                  r.accepted ? "accepted" : "REJECTED: " + r.reject_reason);
     }
     fmt::print("wrote {}\n", args->out);
+    // The rejections are written with their reasons; a session with none
+    // usable is not a success (as `run`).
+    if (!state.trials.empty() && state.accepted() == 0)
+      throw dropfit::Error(fmt::format("session {}: no usable trial ({} of {} rejected, reasons in {}/trials/*/trial.json)",
+                              args->session, state.trials.size(), state.trials.size(), args->out));
   });
 }
 

@@ -107,9 +107,10 @@ TEST(PipelineViews, SwappedCamerasAreRejectedByEveryCommand) {
   clitest::write_text(session / "session.toml",
                       clitest::replace_first(toml, "cameras = [\"cam1\", \"cam2\"]", "cameras = [\"cam2\", \"cam1\"]"));
   const Views v = views_of(session, tmp);
-  // No usable trial: run and process say so with a non-zero exit (run) or
-  // every trial rejected with its reason; fit has nothing to fit.
+  // No usable trial: run and process write every trial rejected with its
+  // reason and exit non-zero; fit has nothing to fit.
   EXPECT_NE(v.run_exit, 0);
+  EXPECT_NE(v.process_exit, 0);
   EXPECT_NE(v.fit_exit, 0);
   ASSERT_EQ(v.run.size(), 5u);
   for (const auto& [id, t] : v.run) {
