@@ -603,6 +603,20 @@ struct ScreenResult {
 };
 ScreenResult screen_trials(SessionData& state, const ScreenOptions& options = {});
 
+// The accepted trials' clock offsets regressed on 1 / impact speed:
+// offset = offset_s + dh_m / v (least squares; SE from the residuals).
+// ok = false with fewer than three trials or one speed.
+struct ContactHeightCheck {
+  bool ok = false;
+  double dh_m = 0.0, se_m = 0.0, offset_s = 0.0;
+  int n = 0;
+};
+ContactHeightCheck contact_height_check(const std::vector<TrialState>& trials);
+// The reason naming both heights when |dh| exceeds max(floor_m, sd_factor
+// SE), else empty (the screen's words; the pipeline asks again once the
+// final mat model places each contact, whose offsets carry no onset lag).
+std::string contact_height_reason(const SessionData& state, double floor_m, double sd_factor);
+
 // The plate stage's trials from a state, on the force clock with the
 // declared clock relation shifted by offset_s (video minus force).
 std::vector<PlateTrial> plate_trials(const SessionData& state, double offset_s);

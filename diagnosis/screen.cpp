@@ -105,50 +105,66 @@ void reject_impulse_outliers(SessionData& state, const ScreenOptions& o, ScreenR
   }
 }
 
-// The trials' clock offsets (video contact instant minus plate onset)
-// against 1 / impact speed: a clock offset is the same in every trial, but
-// a face height or mat top that is off by dh moves each trial's video
-// contact by dh / v. The slope is that height error.
-void reject_height_inconsistency(SessionData& state, const ScreenOptions& o, ScreenResult& out) {
-  std::vector<std::size_t> idx;
-  std::vector<double> x, y;
-  for (std::size_t i = 0; i < state.trials.size(); ++i) {
-    const trial::TrialResult& r = state.trials[i].result;
-    if (!r.accepted || !std::isfinite(r.video_offset_s) || !(r.impact_velocity_m_s > 0.0)) continue;
-    idx.push_back(i);
-    x.push_back(1.0 / r.impact_velocity_m_s);
-    y.push_back(r.video_offset_s);
-  }
-  const auto n = static_cast<double>(x.size());
-  if (x.size() < 3) return;
-  double mx = 0.0, my = 0.0;
-  for (std::size_t k = 0; k < x.size(); ++k) mx += x[k] / n, my += y[k] / n;
-  double sxx = 0.0, sxy = 0.0;
-  for (std::size_t k = 0; k < x.size(); ++k) sxx += (x[k] - mx) * (x[k] - mx), sxy += (x[k] - mx) * (y[k] - my);
-  if (!(sxx > 0.0)) return;
-  const double dh = sxy / sxx, c = my - dh * mx;
-  double rss = 0.0;
-  for (std::size_t k = 0; k < x.size(); ++k) rss += std::pow(y[k] - c - dh * x[k], 2);
-  const double se = std::sqrt(rss / (n - 2.0) / sxx);
-  if (std::abs(dh) <= std::max(o.min_height_error_m, o.height_sd_factor * se)) return;
-  const trial::TrialResult& first = state.trials[idx.front()].result;
-  const double markers_vs_declared = first.surface_rest_z_m - state.mat_top_z_m;
-  const std::string surface =
-      std::isfinite(markers_vs_declared)
-          ? fmt::format("; the surface markers rest {:+.1f} mm from the declared mat top", 1e3 * markers_vs_declared)
-          : "";
-  const std::string reason = fmt::format(
+// A screen reason from the contact-height regression (empty when none).
+std::string height_reason(const ContactHeightCheck& h, const SessionData& state, double floor_m, double sd_factor) {
+  if (!h.ok || std::abs(h.dh_m) <= std::max(floor_m, sd_factor * h.se_m)) return {};
+  std::string surface;
+  for (const auto& t : state.trials)
+    if (t.result.accepted && std::isfinite(t.result.surface_rest_z_m)) {
+      surface = fmt::format("; the surface markers rest {:+.1f} mm from the declared mat top",
+                            1e3 * (t.result.surface_rest_z_m - state.mat_top_z_m));
+      break;
+    }
+  return fmt::format(
       "the trials' clock offsets change with 1 / impact speed as a contact height {:.1f} +- {:.1f} mm off makes them "
       "(offset {:.2f} ms common to all, plus {:+.1f} mm / v; a clock offset is the same in every trial): the face "
       "reaches the mat top {:.1f} mm {} the plate feels it, so the face height (base markers less [impactor] "
       "base_marker_height_m = {:.4g} m) or [forceplate] mat_top_z_m = {:.4g} m is wrong{}; the impact velocity, "
       "deformation and clock offset all depend on it",
-      dh * 1e3, se * 1e3, 1e3 * c, dh * 1e3, std::abs(dh) * 1e3, dh < 0.0 ? "before" : "after",
-      state.base_marker_height_m, state.mat_top_z_m, surface);
-  for (std::size_t i : idx) reject(state, i, reason, out);
+      h.dh_m * 1e3, h.se_m * 1e3, 1e3 * h.offset_s, h.dh_m * 1e3, std::abs(h.dh_m) * 1e3,
+      h.dh_m < 0.0 ? "before" : "after", state.base_marker_height_m, state.mat_top_z_m, surface);
+}
+
+void reject_height_inconsistency(SessionData& state, const ScreenOptions& o, ScreenResult& out) {
+  const std::string reason = height_reason(contact_height_check(state.trials), state, o.min_height_error_m,
+                                           o.height_sd_factor);
+  if (reason.empty()) return;
+  for (std::size_t i = 0; i < state.trials.size(); ++i)
+    if (state.trials[i].result.accepted && std::isfinite(state.trials[i].result.video_offset_s))
+      reject(state, i, reason, out);
 }
 
 }  // namespace
+
+ContactHeightCheck contact_height_check(const std::vector<TrialState>& trials) {
+  ContactHeightCheck h;
+  std::vector<double> x, y;
+  for (const auto& t : trials) {
+    const trial::TrialResult& r = t.result;
+    if (!r.accepted || !std::isfinite(r.video_offset_s) || !(r.impact_velocity_m_s > 0.0)) continue;
+    x.push_back(1.0 / r.impact_velocity_m_s);
+    y.push_back(r.video_offset_s);
+  }
+  h.n = static_cast<int>(x.size());
+  if (h.n < 3) return h;
+  const double n = h.n;
+  double mx = 0.0, my = 0.0;
+  for (std::size_t k = 0; k < x.size(); ++k) mx += x[k] / n, my += y[k] / n;
+  double sxx = 0.0, sxy = 0.0;
+  for (std::size_t k = 0; k < x.size(); ++k) sxx += (x[k] - mx) * (x[k] - mx), sxy += (x[k] - mx) * (y[k] - my);
+  if (!(sxx > 0.0)) return h;
+  h.dh_m = sxy / sxx;
+  h.offset_s = my - h.dh_m * mx;
+  double rss = 0.0;
+  for (std::size_t k = 0; k < x.size(); ++k) rss += std::pow(y[k] - h.offset_s - h.dh_m * x[k], 2);
+  h.se_m = std::sqrt(rss / (n - 2.0) / sxx);
+  h.ok = true;
+  return h;
+}
+
+std::string contact_height_reason(const SessionData& state, double floor_m, double sd_factor) {
+  return height_reason(contact_height_check(state.trials), state, floor_m, sd_factor);
+}
 
 ScreenResult screen_trials(SessionData& state, const ScreenOptions& options) {
   ScreenResult out;

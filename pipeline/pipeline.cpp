@@ -258,7 +258,20 @@ void close_loop(SessionState& state) {
     apply_model6_offsets(state);
   else if (const fitting::FitResult* final_fit = state.final_fit())
     for (auto& t : state.trials) apply_fitted_offset(t.result, *final_fit);
+  check_contact_height(state);
   map_final_residuals(state);
+}
+
+void check_contact_height(SessionState& state) {
+  if (!state.loop) return;
+  // The final model's contact instants carry no onset lag (a few tenths of
+  // a millimetre of dh on every shared session), so the floor is the 5 mm
+  // within which the surface markers' rest height is taken as the mat top.
+  const std::string reason = diagnosis::contact_height_reason(state, 0.005, 4.0);
+  if (reason.empty()) return;
+  state.loop->remaining.push_back({"sync", "contact_height", reason});
+  state.loop->unexplained = true;
+  state.notes.push_back("closing the loop: " + reason);
 }
 
 void map_final_residuals(SessionState& state) {
