@@ -583,10 +583,9 @@ DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& optio
 //   base_marker_height_m, the mat top) adds dh / v. |dh| beyond
 //   max(min_height_error_m, height_sd_factor SE) rejects them naming both
 //   heights. Before any fit the offsets are the plate-onset ones, whose lag
-//   varies with speed on a mat with mass (on the shared validation sessions
-//   |dh| up to 5.5 mm at SEs of 2.5-6 mm), so the floor is the 15 mm within
-//   which the cameras' and the manifest's mat tops may disagree (trial.h):
-//   a base marker height declared 50 mm off reads 45.5 +- 5.7 mm.
+//   varies with speed on a mat with mass (a few millimetres of apparent dh),
+//   so the floor is the 15 mm within which the cameras' and the manifest's
+//   mat tops may disagree (trial.h). docs/faults.md has the measured cases.
 // The pipeline calls it after building the state and before fitting.
 struct ScreenOptions {
   double min_tolerance = 0.03;

@@ -264,9 +264,9 @@ void close_loop(SessionState& state) {
 
 void check_contact_height(SessionState& state) {
   if (!state.loop) return;
-  // The final model's contact instants carry no onset lag (a few tenths of
-  // a millimetre of dh on every shared session), so the floor is the 5 mm
-  // within which the surface markers' rest height is taken as the mat top.
+  // The final model's contact instants carry no onset lag, so the floor is
+  // the 5 mm within which the surface markers' rest height is taken as the
+  // mat top (trial.h).
   const std::string reason = diagnosis::contact_height_reason(state, 0.005, 4.0);
   if (reason.empty()) return;
   state.loop->remaining.push_back({"sync", "contact_height", reason});
