@@ -690,8 +690,8 @@ namespace {
 
 // The free fall's own acceleration: exact on a noise-free parabola; on 4000
 // noisy ones (0.5 mm, 100 frames over 0.1 s) its SE matches its scatter
-// (RMS z within 0.93-1.07; measured 1.015) and 95 +- 1.5 % of the intervals
-// hold the truth (measured 94.4 %; the binomial SE is 0.34 %).
+// (RMS z within 0.93-1.07) and 95 +- 1.5 % of the intervals hold the truth
+// (the binomial SE is 0.34 %).
 TEST(FallAcceleration, RecoversTheFallWithAnHonestSE) {
   const int n = 100;
   Eigen::VectorXd t(n), z(n);
