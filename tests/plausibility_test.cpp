@@ -72,6 +72,24 @@ class Plausibility : public ::testing::Test {
     }
   }
 
+  // `dropfit diagnose` on the session: it exits 0, the session is left
+  // unexplained, and `remaining` holds `name` with a description matching
+  // `pattern`; returns diagnosis.json.
+  nlohmann::json expect_unexplained_by(const std::string& name, const std::string& pattern) {
+    const CliRun r = run_dropfit({"diagnose", session().string(), "--out", out().string()}, dir_.path());
+    EXPECT_EQ(r.exit_code, 0) << r.describe();
+    const auto d = nlohmann::json::parse(read_text(out() / "diagnosis.json"));
+    EXPECT_TRUE(d["unexplained"].get<bool>());
+    int named = 0;
+    for (const auto& x : d["remaining"])
+      if (x["name"] == name) {
+        ++named;
+        EXPECT_TRUE(std::regex_search(x["description"].get<std::string>(), std::regex(pattern))) << x.dump();
+      }
+    EXPECT_EQ(named, 1) << d.dump(1);
+    return d;
+  }
+
   TempDir dir_;
 };
 
@@ -114,19 +132,7 @@ TEST_F(Plausibility, FrameRateFivePercentHighRejectsByTheFreeFall) {
 // the fall free), corrects nothing and leaves the session unexplained.
 TEST_F(Plausibility, FrameRateFourPercentLowIsNamedAsTheVideoTimeBase) {
   edit("session.toml", "frame_rate_hz = 1000.0", "frame_rate_hz = 960.0");
-  const CliRun r = run_dropfit({"diagnose", session().string(), "--out", out().string()}, dir_.path());
-  ASSERT_EQ(r.exit_code, 0) << r.describe();
-  const auto d = nlohmann::json::parse(read_text(out() / "diagnosis.json"));
-  EXPECT_TRUE(d["unexplained"].get<bool>());
-  bool named = false;
-  for (const auto& x : d["remaining"])
-    if (x["name"] == "video_time_base") {
-      named = true;
-      EXPECT_TRUE(std::regex_search(x["description"].get<std::string>(),
-                                    std::regex("frame_rate_hz = 960 Hz would be (99[5-9]|100[0-5]) Hz")))
-          << x.dump();
-    }
-  EXPECT_TRUE(named) << d.dump(1);
+  const auto d = expect_unexplained_by("video_time_base", "frame_rate_hz = 960 Hz would be (99[5-9]|100[0-5]) Hz");
   for (const auto& e : d["effects"]) EXPECT_NE(e["name"], "force_scale") << e.dump();
 }
 
@@ -134,7 +140,8 @@ TEST_F(Plausibility, FrameRateFourPercentLowIsNamedAsTheVideoTimeBase) {
 // for 0.03 m): the face reads 25 mm low and meets the mat top 25 mm / v
 // before the plate feels it, so the trials' clock offsets change with
 // 1 / speed (a clock offset cannot): every trial rejected naming the height
-// error (asserted 20-29.9 mm) and both heights that could be wrong. (At 35 mm and beyond the impulse gate rejects first.)
+// error (asserted 20-29.9 mm) and both heights that could be wrong. (At
+// 35 mm and beyond the impulse gate rejects first.)
 TEST_F(Plausibility, FaceHeightOffRejectsByOffsetsThatScaleWithOneOverSpeed) {
   edit("session.toml", "base_marker_height_m = 0.03", "base_marker_height_m = 0.055");
   expect_all_rejected(run(), "clock offsets change with 1 / impact speed as a contact height -2[0-9]\\.[0-9] \\+- "
@@ -169,20 +176,8 @@ TEST_F(Plausibility, MatTopTheCamerasSeeAgainstTheDeclaredOne) {
 // (dh asserted within -4 to -10 mm, the surface markers' own reading named).
 TEST_F(Plausibility, MatTopSevenMillimetresOffIsNamedByTheFittedOffsets) {
   edit("session.toml", "mat_top_z_m = 0.205", "mat_top_z_m = 0.212");
-  const CliRun r = run_dropfit({"diagnose", session().string(), "--out", out().string()}, dir_.path());
-  ASSERT_EQ(r.exit_code, 0) << r.describe();
-  const auto d = nlohmann::json::parse(read_text(out() / "diagnosis.json"));
-  EXPECT_TRUE(d["unexplained"].get<bool>());
-  bool named = false;
-  for (const auto& x : d["remaining"])
-    if (x["name"] == "contact_height") {
-      named = true;
-      EXPECT_TRUE(std::regex_search(x["description"].get<std::string>(),
-                                    std::regex("contact height -([4-9]|10)\\.[0-9] \\+- [0-9.]+ mm off .*the surface "
-                                               "markers rest -[6-8]\\.[0-9] mm from the declared mat top")))
-          << x.dump();
-    }
-  EXPECT_TRUE(named) << d.dump(1);
+  expect_unexplained_by("contact_height", "contact height -([4-9]|10)\\.[0-9] \\+- [0-9.]+ mm off .*the surface markers "
+                                          "rest -[6-8]\\.[0-9] mm from the declared mat top");
 }
 
 // The impactor's mass scaled so that impulse / (M v) is 1.87 and 0.15: every

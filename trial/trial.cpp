@@ -4,7 +4,6 @@
 #include <fmt/format.h>
 
 #include <Eigen/Dense>
-#include <boost/math/distributions/students_t.hpp>
 #include <Eigen/SVD>
 #include <algorithm>
 #include <array>
@@ -96,43 +95,6 @@ std::string join(const std::vector<std::string>& parts, const char* sep) {
     out += p;
   }
   return out;
-}
-
-struct Fit2 {
-  double z = 0.0, v = 0.0;
-  Eigen::Matrix2d xtx_inv = Eigen::Matrix2d::Zero();
-  double rss = 0.0;
-};
-
-// Least squares of y = z + v tau over the flagged points.
-std::optional<Fit2> line_fit(const std::vector<double>& tau, const std::vector<double>& y,
-                             const std::vector<char>& use) {
-  Eigen::Matrix2d xtx = Eigen::Matrix2d::Zero();
-  Eigen::Vector2d xty = Eigen::Vector2d::Zero();
-  int n = 0;
-  for (std::size_t i = 0; i < tau.size(); ++i) {
-    if (!use[i]) continue;
-    xtx(0, 0) += 1.0;
-    xtx(0, 1) += tau[i];
-    xtx(1, 1) += tau[i] * tau[i];
-    xty(0) += y[i];
-    xty(1) += tau[i] * y[i];
-    ++n;
-  }
-  xtx(1, 0) = xtx(0, 1);
-  const double det = xtx.determinant();
-  if (n < 3 || !(det > 1e-12 * xtx(0, 0) * xtx(1, 1))) return std::nullopt;
-  Fit2 fit;
-  fit.xtx_inv = xtx.inverse();
-  const Eigen::Vector2d beta = fit.xtx_inv * xty;
-  fit.z = beta(0);
-  fit.v = beta(1);
-  for (std::size_t i = 0; i < tau.size(); ++i) {
-    if (!use[i]) continue;
-    const double r = y[i] - fit.z - fit.v * tau[i];
-    fit.rss += r * r;
-  }
-  return fit;
 }
 
 // A single-sample force spike (trial.h), as a reason; empty when none.
@@ -779,79 +741,6 @@ void TrialOptions::validate() const {
   check::non_negative(w, "fall_accel_excess", fall_accel_excess);
   check::in_range(w, "fall_accel_deficit", fall_accel_deficit, 0.0, 1.0);
   check::positive(w, "fall_accel_sigma", fall_accel_sigma);
-}
-
-double FreeFallFit::height_at(double t_s, double gravity_m_s2) const {
-  const double tau = t_s - t_ref_s;
-  return z_ref_m + v_ref_m_s * tau - 0.5 * gravity_m_s2 * tau * tau;
-}
-
-FreeFallFit fit_free_fall(const Eigen::VectorXd& t_s, const Eigen::VectorXd& z_m, double gravity_m_s2,
-                          double contact_height_m, double t_ref_s) {
-  FreeFallFit out;
-  out.t_ref_s = t_ref_s;
-  const std::size_t n = static_cast<std::size_t>(t_s.size());
-  std::vector<double> tau(n), y(n);
-  std::vector<char> use(n, 1);
-  for (std::size_t i = 0; i < n; ++i) {
-    tau[i] = t_s[static_cast<Eigen::Index>(i)] - t_ref_s;
-    y[i] = z_m[static_cast<Eigen::Index>(i)] + 0.5 * gravity_m_s2 * tau[i] * tau[i];
-  }
-  std::optional<Fit2> fit = line_fit(tau, y, use);
-  if (!fit) return out;
-  // One pass dropping residuals beyond 4 robust SDs (misdigitised frames).
-  {
-    std::vector<double> r(n), absr;
-    for (std::size_t i = 0; i < n; ++i) {
-      r[i] = y[i] - fit->z - fit->v * tau[i];
-      absr.push_back(std::abs(r[i]));
-    }
-    std::nth_element(absr.begin(), absr.begin() + static_cast<std::ptrdiff_t>(n / 2), absr.end());
-    const double sigma = std::max(1.4826 * absr[n / 2], 1e-6);
-    bool dropped = false;
-    for (std::size_t i = 0; i < n; ++i) {
-      if (std::abs(r[i]) > 4.0 * sigma) use[i] = 0, dropped = true;
-    }
-    if (dropped) {
-      std::optional<Fit2> refit = line_fit(tau, y, use);
-      if (!refit) return out;
-      fit = refit;
-    }
-  }
-  const int used = static_cast<int>(std::count(use.begin(), use.end(), 1));
-  out.n_frames = used;
-  out.z_ref_m = fit->z;
-  out.v_ref_m_s = fit->v;
-  const double s2 = fit->rss / (used - 2);
-  out.rms_m = std::sqrt(fit->rss / used);
-  out.covariance = s2 * fit->xtx_inv;
-
-  // Arrival at the contact height: the descending root of
-  // z0 + v0 tau - g tau^2 / 2 = H, tau = 2 (H - z0) / (v0 - s), s = sqrt(v0^2 - 2 g (H - z0)).
-  const double z0 = fit->z, v0 = fit->v;
-  const double disc = v0 * v0 - 2.0 * gravity_m_s2 * (contact_height_m - z0);
-  if (!(disc > 0.0)) return out;
-  const double s = std::sqrt(disc);
-  if (!(v0 - s < 0.0)) return out;
-  out.contact_time_s = t_ref_s + 2.0 * (contact_height_m - z0) / (v0 - s);
-  out.contact_speed_m_s = s;
-  const Eigen::Vector2d grad(gravity_m_s2 / s, v0 / s);
-  const double var = grad.dot(out.covariance * grad);
-  out.contact_speed_ci_m_s = student_t_quantile(0.975, used - 2) * std::sqrt(std::max(var, 0.0));
-  // The arrival tau solves z0 + v0 tau - g tau^2 / 2 = H where the face
-  // descends at s: d tau / d z0 = 1 / s, d tau / d v0 = tau / s.
-  const double arrival = out.contact_time_s - t_ref_s;
-  const Eigen::Vector2d grad_t(1.0 / s, arrival / s);
-  out.contact_speed_se_m_s = std::sqrt(std::max(var, 0.0));
-  out.contact_time_se_s = std::sqrt(std::max(grad_t.dot(out.covariance * grad_t), 0.0));
-  out.speed_time_cov = grad.dot(out.covariance * grad_t);
-  out.ok = true;
-  return out;
-}
-
-double student_t_quantile(double p, double dof) {
-  if (!(p > 0.0 && p < 1.0) || !(dof > 0.0)) return kNaN;
-  return boost::math::quantile(boost::math::students_t(dof), p);
 }
 
 double base_tilt_deg(const std::vector<Eigen::Vector3d>& base_points_m) {
