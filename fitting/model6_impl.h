@@ -276,7 +276,8 @@ class Column {
   // For a Jet column, the step solved first in doubles (the values), then
   // one Newton iteration in T carries the derivatives: at the converged
   // values the residual is zero, so that iteration's change of the
-  // derivatives is the implicit function's, -J^-1 dres/dparameters.
+  // derivatives is the implicit function's, -J^-1 dres/dparameters. A step
+  // the doubles do not converge runs its iterations in T.
   std::vector<FoamLawT<double>> law_d_;
   std::vector<double> mass_d_, es_d_, ss_d_, u_d_, v_d_, a_d_, q1_d_, q2_d_, se_d_;
   StepWork<double> w_d_;
@@ -373,10 +374,19 @@ void Column<T>::newton(double dt) {
     d.se = se_d_.data();
     d.m0 = val(c.m0), d.top_load = val(c.top_load);
     d.eta = val(eta_), d.e1 = val(e1_), d.e2 = val(e2_), d.b1 = val(b1_), d.b2 = val(b2_);
+    bool converged = false;
+    for (int it = 0; it < 30 && !converged; ++it) converged = newton_iteration(d, dt, w_d_, scale);
+    if (converged) {
+      for (int j = 0; j < n_; ++j) w_.un[j] = T(w_d_.un[j]);
+      newton_iteration(c, dt, w_, scale);
+      return;
+    }
+    // Not converged in doubles: the values are those of the last iterate
+    // (as in the doubles' simulation), and so must the derivatives be, so
+    // the iterations run again in T.
+    scale = 0.0;
     for (int it = 0; it < 30; ++it)
-      if (newton_iteration(d, dt, w_d_, scale)) break;
-    for (int j = 0; j < n_; ++j) w_.un[j] = T(w_d_.un[j]);
-    newton_iteration(c, dt, w_, scale);
+      if (newton_iteration(c, dt, w_, scale)) break;
   }
 }
 
