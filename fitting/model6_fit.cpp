@@ -294,6 +294,23 @@ double shift_se(const Window& w, const std::vector<double>& grf, double shift) {
   return std::sqrt(2.0 / curv) * std::max(1.0, rms) * std::sqrt((1.0 + rho) / (1.0 - rho));
 }
 
+// The model's discrepancy in the shift: the shift that fits the loading
+// part alone (the samples up to the measured peak) less the whole window's.
+// A column of the right shape fits both with one contact instant (they
+// differ by the noise); a misfit of the force's shape pulls them apart, and
+// by about what it biases the whole window's shift.
+double shift_discrepancy_s(const Window& w, const std::vector<double>& grf, double shift, double min_s,
+                           double max_s) {
+  Window rise = w;
+  const TrialData& tr = *w.data;
+  double t_peak = 0.0, peak = -1e300;
+  for (int i : w.f_idx)
+    if (tr.grf_n[i] > peak) peak = tr.grf_n[i], t_peak = tr.t_s[i];
+  std::erase_if(rise.f_idx, [&](int i) { return tr.t_s[i] > t_peak; });
+  if (rise.f_idx.size() < 5) return 0.0;
+  return std::abs(profile_shift(rise, grf, min_s, max_s) - shift);
+}
+
 // The standard errors of the first kFree parameters (the logarithms) from
 // (J^T J)^-1 over every parameter block (the clock shifts included), scaled
 // by the residual variance when the fit is short of the noise (2 cost /
@@ -345,7 +362,9 @@ TrialReport predict_model6(const TrialData& trial, const Model6Params& params, c
   rep.window_end_s = w.end_s;
   const double shift = profile_shift(w, grf, options.contact_shift_min_s, options.contact_shift_max_s);
   rep.contact_shift_s = shift;
-  rep.contact_shift_se_s = shift_se(w, grf, shift);
+  rep.contact_shift_se_s =
+      std::hypot(shift_se(w, grf, shift),
+                 shift_discrepancy_s(w, grf, shift, options.contact_shift_min_s, options.contact_shift_max_s));
   Simulation& sim = rep.simulation;
   sim.t_s = trial.t_s;
   for (Eigen::VectorXd* v : {&sim.grf_n, &sim.impactor_m, &sim.surface_m, &sim.layer1_m, &sim.layer2_m}) v->setZero(n);

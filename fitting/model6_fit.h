@@ -27,7 +27,10 @@
 // errors read the same; each trial's contact_shift_se_s is from the
 // curvature of its force residual in the shift, scaled by the residual's
 // RMS in noise SDs when above 1 (a misfit counts as noise) and by its
-// lag-1 autocorrelation's AR(1) factor. The
+// lag-1 autocorrelation's AR(1) factor, and widened in quadrature by the
+// model's discrepancy in the shift (the shift the loading part alone fits
+// against the whole window's: a force shape the column misses pulls them
+// apart by about what it biases the shift). The
 // derivatives: two 8-wide Jet passes on two threads.
 #include <string>
 #include <vector>

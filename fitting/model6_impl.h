@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <type_traits>
 #include <vector>
 
 #include "core/error.h"
@@ -116,6 +117,85 @@ void check(const Model6ParamsT<T>& p) {
   require(ok, "model6: a foam law needs positive moduli, plateau and masses, e_d in (0, 1], n >= 1, g >= 0, tau > 0");
 }
 
+// A step's start state in scalar S (the column's own, or its values in
+// doubles): what the stresses and the Newton iteration read.
+template <typename S>
+struct StepView {
+  int n = 0;
+  double area = 0.0;
+  const FoamLawT<S>* law = nullptr;
+  const double* h = nullptr;
+  const S *mass = nullptr, *es = nullptr, *ss = nullptr;  // node masses; static strain and stress
+  const S *u = nullptr, *v = nullptr, *a = nullptr, *q1 = nullptr, *q2 = nullptr, *se = nullptr;
+  S m0, eta, e1, e2, b1, b2;  // node 0's moving mass; viscosity; the Prony recursion's coefficients
+  S top_load;                 // the impactor's weight on node 0 while in contact (0 otherwise)
+};
+
+// The step's work arrays: node travels un and velocities vn at the step's
+// end, element stresses (elastic sen, total sign, tangent kn x A / h), the
+// Newton system.
+template <typename S>
+struct StepWork {
+  std::vector<S> un, vn, sen, sign, kn, res, diag, off;
+  void resize(int n) {
+    for (auto* x : {&un, &vn, &sen, &sign, &kn, &res, &diag, &off}) x->assign(n, S(0.0));
+  }
+};
+
+// Stresses of every element at the step's end (w.un, w.vn): elastic, total
+// (the Prony terms advanced over dt) and the tangent of the total stress in
+// the element's strain times A / h.
+template <typename S>
+void step_stresses(const StepView<S>& c, double dt, StepWork<S>& w) {
+  for (int j = 0; j < c.n; ++j) {
+    const S ub = j + 1 < c.n ? w.un[j + 1] : S(0.0), vb = j + 1 < c.n ? w.vn[j + 1] : S(0.0);
+    const S e = c.es[j] + (w.un[j] - ub) / c.h[j];
+    const S edot = (w.vn[j] - vb) / c.h[j];
+    S s, ds;
+    elastic(c.law[j], e, &s, &ds);
+    w.sen[j] = s;
+    const S dse = s - c.se[j];
+    w.sign[j] = s + c.e1 * c.q1[j] + c.b1 * dse + c.e2 * c.q2[j] + c.b2 * dse + c.eta * edot;
+    w.kn[j] = S(c.area) * (ds * (S(1.0) + c.b1 + c.b2) + c.eta * S(2.0 / dt)) / c.h[j];
+  }
+}
+
+// One Newton iteration on the trapezoidal step's equations of motion at
+// the node travels w.un (updated in place; Thomas algorithm on the
+// symmetric tridiagonal Jacobian). Returns whether w.un already met the
+// relative residual 1e-10 (scale: the largest force term seen).
+template <typename S>
+bool newton_iteration(const StepView<S>& c, double dt, StepWork<S>& w, double& scale) {
+  const double c4 = 4.0 / (dt * dt), c2 = 2.0 / dt;
+  const S A(c.area);
+  const int n = c.n;
+  for (int j = 0; j < n; ++j) w.vn[j] = S(c2) * (w.un[j] - c.u[j]) - c.v[j];
+  step_stresses(c, dt, w);
+  double rmax = 0.0;
+  for (int j = 0; j < n; ++j) {
+    const S mj = j == 0 ? c.m0 : c.mass[j];
+    const S acc = S(c4) * (w.un[j] - c.u[j] - S(dt) * c.v[j]) - c.a[j];
+    S f = -A * (w.sign[j] - c.ss[j]);
+    if (j > 0) f += A * (w.sign[j - 1] - c.ss[j - 1]);
+    if (j == 0) f += c.top_load;
+    w.res[j] = mj * acc - f;
+    w.diag[j] = mj * S(c4) + w.kn[j] + (j > 0 ? w.kn[j - 1] : S(0.0));
+    w.off[j] = -w.kn[j];  // between j and j + 1
+    rmax = std::max(rmax, std::abs(val(w.res[j])));
+    scale = std::max(scale, std::abs(val(mj * acc)) + std::abs(val(f)));
+  }
+  const bool converged = rmax <= 1e-10 * std::max(scale, 1e-6);
+  for (int j = 1; j < n; ++j) {
+    const S q = w.off[j - 1] / w.diag[j - 1];
+    w.diag[j] -= q * w.off[j - 1];
+    w.res[j] -= q * w.res[j - 1];
+  }
+  w.res[n - 1] /= w.diag[n - 1];
+  for (int j = n - 2; j >= 0; --j) w.res[j] = (w.res[j] - w.off[j] * w.res[j + 1]) / w.diag[j];
+  for (int j = 0; j < n; ++j) w.un[j] -= w.res[j];
+  return converged;
+}
+
 // The column's state and the implicit step.
 template <typename T>
 class Column {
@@ -164,8 +244,8 @@ class Column {
   bool step(double dt);
 
  private:
-  void newton(double dt);            // the step's node travels un_ (from their start in un_)
-  void finish_step(double dt);       // the state at the step's end from un_
+  void newton(double dt);            // the step's node travels w_.un (from their start there)
+  void finish_step(double dt);       // the state at the step's end from w_.un
   bool advance_contact(double dt);   // the contact's change; false when it changed
   void static_state();
   // The Prony recursion's coefficients over a step dt (kept for the last dt):
@@ -177,8 +257,7 @@ class Column {
     b1_ = g1_ * (T(1.0) - e1_) * tau1_ / T(dt), b2_ = g2_ * (T(1.0) - e2_) * tau2_ / T(dt);
     prony_dt_ = dt;
   }
-  void element_stresses(const std::vector<T>& u, const std::vector<T>& vel, double dt, std::vector<T>* se,
-                        std::vector<T>* sigma, std::vector<T>* stiff) const;
+  StepView<T> view() const;
 
   Impact imp_;
   double area_;
@@ -191,9 +270,17 @@ class Column {
   bool contact_ = true;
   T z_ = T(0.0), vz_ = T(0.0);  // the impactor in flight
   // Work arrays (no allocation in the time loop).
-  mutable std::vector<T> un_, vn_, sen_, sign_, kn_, res_, diag_, off_;
+  StepWork<T> w_;
   mutable double prony_dt_ = -1.0;
   mutable T e1_, e2_, b1_, b2_;
+  // For a Jet column, the step solved first in doubles (the values), then
+  // one Newton iteration in T carries the derivatives: at the converged
+  // values the residual is zero, so that iteration's change of the
+  // derivatives is the implicit function's, -J^-1 dres/dparameters. A step
+  // the doubles do not converge runs its iterations in T.
+  std::vector<FoamLawT<double>> law_d_;
+  std::vector<double> mass_d_, es_d_, ss_d_, u_d_, v_d_, a_d_, q1_d_, q2_d_, se_d_;
+  StepWork<double> w_d_;
 };
 
 template <typename T>
@@ -226,35 +313,41 @@ void Column<T>::static_state() {
     se_[j] = s;
     sigma_[j] = s;
   }
-  un_.assign(n_, T(0.0));
-  vn_ = sen_ = sign_ = kn_ = res_ = diag_ = off_ = un_;
+  w_.resize(n_);
+  if constexpr (!std::is_same_v<T, double>) {
+    law_d_.resize(n_);
+    for (int j = 0; j < n_; ++j) {
+      const FoamLawT<T>& l = law_[j];
+      law_d_[j] = {val(l.plateau_pa),       val(l.modulus_pa),           val(l.hardening_pa),
+                   val(l.densification_pa), val(l.densification_strain), val(l.densification_exponent)};
+    }
+    mass_d_.resize(n_), es_d_.resize(n_), ss_d_.resize(n_);
+    for (int j = 0; j < n_; ++j) mass_d_[j] = val(mass_[j]), es_d_[j] = val(es_[j]), ss_d_[j] = val(ss_[j]);
+    for (auto* x : {&u_d_, &v_d_, &a_d_, &q1_d_, &q2_d_, &se_d_}) x->assign(n_, 0.0);
+    w_d_.resize(n_);
+  }
 }
 
-// Stresses of every element at node travels u and velocities vel: elastic
-// se, total sigma (with the Prony terms advanced over dt), tangent of sigma
-// in the element's strain times A / h (stiff).
 template <typename T>
-void Column<T>::element_stresses(const std::vector<T>& u, const std::vector<T>& vel, double dt, std::vector<T>* se,
-                                 std::vector<T>* sigma, std::vector<T>* stiff) const {
-  prony(dt);
-  const T &e1 = e1_, &e2 = e2_, &b1 = b1_, &b2 = b2_;
-  for (int j = 0; j < n_; ++j) {
-    const T ub = j + 1 < n_ ? u[j + 1] : T(0.0), vb = j + 1 < n_ ? vel[j + 1] : T(0.0);
-    const T e = es_[j] + (u[j] - ub) / h_[j];
-    const T edot = (vel[j] - vb) / h_[j];
-    T s, ds;
-    elastic(law_[j], e, &s, &ds);
-    (*se)[j] = s;
-    const T dse = s - se_[j];
-    (*sigma)[j] = s + e1 * q1_[j] + b1 * dse + e2 * q2_[j] + b2 * dse + eta_ * edot;
-    (*stiff)[j] = T(area_) * (ds * (T(1.0) + b1 + b2) + eta_ * T(2.0 / dt)) / h_[j];
-  }
+StepView<T> Column<T>::view() const {
+  StepView<T> c;
+  c.n = n_;
+  c.area = area_;
+  c.law = law_.data();
+  c.h = h_.data();
+  c.mass = mass_.data(), c.es = es_.data(), c.ss = ss_.data();
+  c.u = u_.data(), c.v = v_.data(), c.a = a_.data(), c.q1 = q1_.data(), c.q2 = q2_.data(), c.se = se_.data();
+  const T M(imp_.mass_kg);
+  c.m0 = contact_ ? mass_[0] + M : mass_[0];
+  c.top_load = contact_ ? M * T(imp_.gravity_m_s2) : T(0.0);
+  c.eta = eta_, c.e1 = e1_, c.e2 = e2_, c.b1 = b1_, c.b2 = b2_;
+  return c;
 }
 
 template <typename T>
 bool Column<T>::step(double dt) {
   // Newton on the node travels at the step's end; start: constant acceleration.
-  for (int j = 0; j < n_; ++j) un_[j] = u_[j] + T(dt) * v_[j] + T(0.25 * dt * dt) * a_[j];
+  for (int j = 0; j < n_; ++j) w_.un[j] = u_[j] + T(dt) * v_[j] + T(0.25 * dt * dt) * a_[j];
   newton(dt);
   finish_step(dt);
   return advance_contact(dt);
@@ -262,55 +355,57 @@ bool Column<T>::step(double dt) {
 
 template <typename T>
 void Column<T>::newton(double dt) {
-  const T M(imp_.mass_kg), g(imp_.gravity_m_s2), A(area_);
-  const T m0 = contact_ ? mass_[0] + M : mass_[0];
-  const double c4 = 4.0 / (dt * dt), c2 = 2.0 / dt;
+  prony(dt);
+  const StepView<T> c = view();
   double scale = 0.0;
-  for (int it = 0; it < 30; ++it) {
-    for (int j = 0; j < n_; ++j) vn_[j] = T(c2) * (un_[j] - u_[j]) - v_[j];
-    element_stresses(un_, vn_, dt, &sen_, &sign_, &kn_);
-    double rmax = 0.0;
+  if constexpr (std::is_same_v<T, double>) {
+    for (int it = 0; it < 30; ++it)
+      if (newton_iteration(c, dt, w_, scale)) break;
+  } else {
+    StepView<double> d;
+    d.n = n_, d.area = area_, d.law = law_d_.data(), d.h = h_.data();
+    d.mass = mass_d_.data(), d.es = es_d_.data(), d.ss = ss_d_.data();
     for (int j = 0; j < n_; ++j) {
-      const T mj = j == 0 ? m0 : mass_[j];
-      const T acc = T(c4) * (un_[j] - u_[j] - T(dt) * v_[j]) - a_[j];
-      T f = -A * (sign_[j] - ss_[j]);
-      if (j > 0) f += A * (sign_[j - 1] - ss_[j - 1]);
-      if (j == 0 && contact_) f += M * g;
-      res_[j] = mj * acc - f;
-      diag_[j] = mj * T(c4) + kn_[j] + (j > 0 ? kn_[j - 1] : T(0.0));
-      off_[j] = -kn_[j];  // between j and j + 1
-      rmax = std::max(rmax, std::abs(val(res_[j])));
-      scale = std::max(scale, std::abs(val(mj * acc)) + std::abs(val(f)));
+      u_d_[j] = val(u_[j]), v_d_[j] = val(v_[j]), a_d_[j] = val(a_[j]);
+      q1_d_[j] = val(q1_[j]), q2_d_[j] = val(q2_[j]), se_d_[j] = val(se_[j]);
+      w_d_.un[j] = val(w_.un[j]);
     }
-    const bool converged = rmax <= 1e-10 * std::max(scale, 1e-6);
-    // Thomas algorithm on diag / off (symmetric tridiagonal): J du = -res.
-    for (int j = 1; j < n_; ++j) {
-      const T w = off_[j - 1] / diag_[j - 1];
-      diag_[j] -= w * off_[j - 1];
-      res_[j] -= w * res_[j - 1];
+    d.u = u_d_.data(), d.v = v_d_.data(), d.a = a_d_.data(), d.q1 = q1_d_.data(), d.q2 = q2_d_.data();
+    d.se = se_d_.data();
+    d.m0 = val(c.m0), d.top_load = val(c.top_load);
+    d.eta = val(eta_), d.e1 = val(e1_), d.e2 = val(e2_), d.b1 = val(b1_), d.b2 = val(b2_);
+    bool converged = false;
+    for (int it = 0; it < 30 && !converged; ++it) converged = newton_iteration(d, dt, w_d_, scale);
+    if (converged) {
+      for (int j = 0; j < n_; ++j) w_.un[j] = T(w_d_.un[j]);
+      newton_iteration(c, dt, w_, scale);
+      return;
     }
-    res_[n_ - 1] /= diag_[n_ - 1];
-    for (int j = n_ - 2; j >= 0; --j) res_[j] = (res_[j] - off_[j] * res_[j + 1]) / diag_[j];
-    for (int j = 0; j < n_; ++j) un_[j] -= res_[j];
-    if (converged) break;  // one step more than needed: the derivatives converge with it
+    // Not converged in doubles: the values are those of the last iterate
+    // (as in the doubles' simulation), and so must the derivatives be, so
+    // the iterations run again in T.
+    scale = 0.0;
+    for (int it = 0; it < 30; ++it)
+      if (newton_iteration(c, dt, w_, scale)) break;
   }
 }
 
 template <typename T>
 void Column<T>::finish_step(double dt) {
   const double c4 = 4.0 / (dt * dt), c2 = 2.0 / dt;
-  for (int j = 0; j < n_; ++j) vn_[j] = T(c2) * (un_[j] - u_[j]) - v_[j];
-  element_stresses(un_, vn_, dt, &sen_, &sign_, &kn_);
+  const StepView<T> c = view();
+  for (int j = 0; j < n_; ++j) w_.vn[j] = T(c2) * (w_.un[j] - u_[j]) - v_[j];
+  step_stresses(c, dt, w_);
   for (int j = 0; j < n_; ++j) {
-    q1_[j] = e1_ * q1_[j] + b1_ * (sen_[j] - se_[j]);
-    q2_[j] = e2_ * q2_[j] + b2_ * (sen_[j] - se_[j]);
+    q1_[j] = e1_ * q1_[j] + b1_ * (w_.sen[j] - se_[j]);
+    q2_[j] = e2_ * q2_[j] + b2_ * (w_.sen[j] - se_[j]);
   }
   for (int j = 0; j < n_; ++j) {
-    a_[j] = T(c4) * (un_[j] - u_[j] - T(dt) * v_[j]) - a_[j];
-    u_[j] = un_[j];
-    v_[j] = vn_[j];
-    se_[j] = sen_[j];
-    sigma_[j] = sign_[j];
+    a_[j] = T(c4) * (w_.un[j] - u_[j] - T(dt) * v_[j]) - a_[j];
+    u_[j] = w_.un[j];
+    v_[j] = w_.vn[j];
+    se_[j] = w_.sen[j];
+    sigma_[j] = w_.sign[j];
   }
 }
 

@@ -12,10 +12,13 @@
 // on c1, 3.3 and 1.4 on c2, whose plate noise is a few newtons). On the
 // generator's foam (its densification (e_d / (e_d - e))^n - 1 over an
 // exponential plateau, not Model 6's tanh plateau and (e / (e_d - e))^2)
-// those targets are not met yet: seed 2401 trains to 13 and 5 noise SDs
-// and predicts peaks within 6.4 %, travel within 2.0 mm, offsets within
-// 0.53 ms; asserted at 8 %, 2.5 mm, 0.6 ms and 16 / 6 noise SDs so that a
-// regression shows.
+// the targets hold on some foams and not on others: seed 2407 trains to
+// 3.6 and 0.9 noise SDs and predicts peaks within 0.2 %, travel within
+// 0.15 mm, offsets within 0.05 ms (asserted at the c1/c2 targets); seed
+// 2401, whose base foam the fastest trial drives to twice the training
+// strain, trains to 13 and 5 noise SDs and predicts peaks within 6.4 %,
+// travel within 2.0 mm, offsets within 0.53 ms (asserted at 8 %, 2.5 mm,
+// 0.6 ms and 16 / 6 noise SDs so that a regression shows).
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
@@ -125,12 +128,15 @@ void check_shared(const std::string& name) {
 TEST(Model6Fit, SharedContinuumC1) { check_shared("c1-foam"); }
 TEST(Model6Fit, SharedContinuumC2) { check_shared("c2-foam"); }
 
-TEST(Model6Fit, GeneratorFoam) {
-  const synth::SyntheticSession s = synth::make_session(synth::foam_world_options(2401));
+void check_generator(std::uint64_t seed, const Tolerance& tol) {
+  const synth::SyntheticSession s = synth::make_session(synth::foam_world_options(seed));
   std::vector<TruthTrial> tt;
   for (const auto& t : s.truth.trials) tt.push_back({t.id, t.peak_force_n, t.max_deformation_m, t.video_offset_s});
-  check_session(s.session, tt, Tolerance{0.08, 2.5e-3, 6e-4, 16.0, 6.0});
+  check_session(s.session, tt, tol);
 }
+
+TEST(Model6Fit, GeneratorFoam) { check_generator(2401, Tolerance{0.08, 2.5e-3, 6e-4, 16.0, 6.0}); }
+TEST(Model6Fit, GeneratorFoamWithinTargets) { check_generator(2407, Tolerance{}); }
 
 }  // namespace
 }  // namespace dropfit
