@@ -136,7 +136,7 @@ struct Profiler {
   Optimum profile_point(int j, double delta) const {
     auto [u0, sh0] = on_path(j, delta);
     FitOptions oo = o;
-    oo.max_iterations = 50;
+    oo.max_iterations = 25;
     return run_ceres(preps, space, oo, u0, evals, false, &sh0, 0.0, j);
   }
 
@@ -159,10 +159,10 @@ struct Profiler {
     if (*at_bound) return std::max(room, 0.0);
     double lo = 0.0, lo_r = 0.0, hi = std::numeric_limits<double>::infinity(), hi_r = 0.0;
     double d = std::min(guess, room);
-    for (int it = 0; it < 5 && d > 0.0; ++it) {
+    for (int it = 0; it < 4 && d > 0.0; ++it) {
       const Optimum p = profile_point(j, dir * d);
       const double r = std::sqrt(std::max(statistic(j, p.cost), 0.0) / kChi2One95);  // 1 at the end
-      if (std::abs(r - 1.0) < 0.03) return d;
+      if (std::abs(r - 1.0) < 0.05) return d;
       if (r < 1.0) {
         lo = d, lo_r = r;
         if (d >= room) {
@@ -197,7 +197,7 @@ void profile_intervals(const Profiler& pf, const ErrorBudget& budget, FitResult*
   for (int j = 0; j < space.size(); ++j) {
     const FreeParam& f = space.free[j];
     ParameterEstimate& e = res->estimates[j];
-    if (f.transform != Transform::Log || budget.lost[j] || !(pf.calib[j] > 0.0)) continue;
+    if (f.transform != Transform::Log || budget.lost[j] || !(pf.calib[j] > 0.0) || e.interval == "basins") continue;
     const double half = kZ95 * std::sqrt(budget.covariance(j, j));
     const bool weak = !e.identifiable;
     bool side[2] = {weak, weak};
@@ -343,8 +343,10 @@ void refine_intervals(const std::vector<Prepared>& preps, const ParamSpace& spac
   const Eigen::Index n = s.best.jacobian.cols();
   if (budget.covariance.rows() != n || n < space.size() || s.best.jacobian.rows() <= n) return;
   const Profiler pf(preps, space, o, s.best, budget, evals);
-  profile_intervals(pf, budget, res);
+  // Basins first: a parameter whose interval spans two basins needs no
+  // profile within one.
   basin_intervals(pf, s, budget, res);
+  profile_intervals(pf, budget, res);
 }
 
 }  // namespace dropfit::fitting::internal
