@@ -75,10 +75,10 @@
 // determined, the interval is the profile likelihood's, calibrated to the
 // error budget (fitting/detail/identify.h): asymmetric, or reaching the
 // search bound (then the parameter is not identifiable: the bound limits
-// it). Another optimum within a parameter's 95 % profile threshold (chi-square, one
-// degree of freedom, 3.84) whose value lies outside its interval makes it
-// not identifiable: its interval spans both basins, with the reason in
-// ParameterEstimate::note and the other optimum in FitResult::alternatives.
+// it). Another optimum the data do not reject (likelihood ratio under the
+// AR(1) noise at most 3.84: chi-square, one degree of freedom, 95 %) makes
+// each parameter whose value there lies outside its interval not
+// identifiable, its interval spanning both basins (the reason in note).
 // A direction the data do not constrain leaves no interval at all.
 // A parameter is `model_limited` when a channel's residual stays above its
 // noise (RMS over 1.5 noise SDs with lag-1 correlation over 0.5): its
