@@ -18,6 +18,7 @@
 
 #include "core/error.h"
 #include "core/parallel.h"
+#include "fitting/detail/identify.h"
 #include "fitting/detail/objective.h"
 #include "fitting/detail/search.h"
 #include "fitting/detail/space.h"
@@ -65,6 +66,14 @@ void check_options(const FitOptions& o) {
     throw Error("fit: stiffness and damping bounds must be positive and increasing");
 }
 
+// A fit from scratch (not a refit near a known optimum: the loop's
+// candidates, a warm start) also looks for Model 4's conjugate basin and
+// the intervals beyond the linearisation (fitting/detail/identify.h).
+bool searches_identifiability(const FitOptions& o) {
+  return o.optimizer == Optimizer::Ceres && o.every_ordering && !o.protect_initial &&
+         !(o.initial.k1_n_m > 0.0 && o.starts == 1);
+}
+
 struct FitCore {
   MatParams params;
   Search search;
@@ -80,6 +89,7 @@ FitCore fit_core(const std::vector<const TrialData*>& train, const FitOptions& o
   const double k_eff = effective_stiffness(fc.preps);
   fc.space = make_space(o, k_eff);
   fc.search = optimise(fc.preps, fc.space, o, k_eff, evals, warnings, &fc.used);
+  if (searches_identifiability(o)) search_conjugate(fc.preps, fc.space, o, evals, &fc.search);
   fc.params = fc.space.to_mat(fc.search.best.u.data());
   return fc;
 }
@@ -191,6 +201,40 @@ void leave_each_out(const std::vector<TrialData>& trials, const FitOptions& opti
   }
 }
 
+// The standard error of a trial's clock shift with the parameters held:
+// the force residuals' derivative g with respect to the shift against
+// their noise as it is, an AR(1) process fitted to the residuals at the
+// optimum (variance s^2, lag-1 correlation phi; the slow structure of a
+// misfit keeps phi near 1 and so widens the interval):
+//   var = s^2 sum_l phi^|l| sum_i g_i g_(i+l) / (sum_i g_i^2)^2.
+double conditional_shift_se(const Prepared& p, const std::vector<double>& grf, double shift) {
+  using J1 = ceres::Jet<double, 1>;
+  const size_t m = p.f_idx.size();
+  std::vector<double> g(m), d(m);
+  double gg = 0.0, rss = 0.0, lag1 = 0.0;
+  for (size_t k = 0; k < m; ++k) {
+    const int i = p.f_idx[k];
+    const J1 f = on_grid(grf, J1(p.data->t_s[i]) - J1(shift, 0), p.h, 0.0);
+    d[k] = (f.a - p.data->grf_n[i]) * p.f_w[k];
+    g[k] = f.v[0] * p.f_w[k];
+    rss += d[k] * d[k];
+    gg += g[k] * g[k];
+    if (k > 0) lag1 += d[k] * d[k - 1];
+  }
+  if (!(gg > 0.0) || m < 3) return kNaN;
+  const double s2 = rss / static_cast<double>(m - 1);
+  const double phi = rss > 0.0 ? std::clamp(lag1 / rss, -0.5, 0.98) : 0.0;
+  double meat = gg, w = 1.0;
+  for (size_t lag = 1; lag < m; ++lag) {
+    w *= phi;
+    if (std::abs(w) < 1e-4) break;
+    double c = 0.0;
+    for (size_t k = 0; k + lag < m; ++k) c += g[k] * g[k + lag];
+    meat += 2.0 * w * c;
+  }
+  return std::sqrt(s2 * std::max(meat, 0.0)) / gg;
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------
@@ -205,21 +249,7 @@ TrialReport predict(const TrialData& trial, const MatParams& params, const FitOp
   const detail::Trace<double> s = simulate_window(p, space, options, params, nullptr);
   const double shift = profile_shift(p, s.grf);
   rep.contact_shift_s = shift;
-  if (p.shifted()) {
-    // Conditional standard error of the shift: residual variance over the
-    // squared derivative of the force residuals.
-    using J1 = ceres::Jet<double, 1>;
-    double jj = 0.0, rss = 0.0;
-    for (size_t k = 0; k < p.f_idx.size(); ++k) {
-      const int i = p.f_idx[k];
-      const J1 f = on_grid(s.grf, J1(trial.t_s[i]) - J1(shift, 0), p.h, 0.0);
-      const double d = (f.a - trial.grf_n[i]) * p.f_w[k];
-      rss += d * d;
-      jj += (f.v[0] * p.f_w[k]) * (f.v[0] * p.f_w[k]);
-    }
-    const double dof = std::max<double>(static_cast<double>(p.f_idx.size()) - 1.0, 1.0);
-    if (jj > 0.0) rep.contact_shift_se_s = std::sqrt(rss / dof / jj);
-  }
+  if (p.shifted()) rep.contact_shift_se_s = conditional_shift_se(p, s.grf, shift);
 
   // The simulation on the trial's own samples: force on the shifted clock,
   // travel on the video's (free fall before contact).
@@ -365,9 +395,7 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
       nuisance_columns(fc.preps, fc.space, options, res.params, best.shifts, best.residuals.size());
   const ErrorBudget budget = budget_at(fc.preps, best, nuisances);
   covariance(best, fc.space, options, res.params, budget, &res.estimates, &shift_se, &res.warnings);
-  alternatives(fc.search, fc.space, options, &res);
-  for (auto& e : res.estimates)
-    if (!e.identifiable) e.ci_low = e.ci_high = kNaN;
+  if (searches_identifiability(options)) refine_intervals(fc.preps, fc.space, options, fc.search, budget, &evals, &res);
   res.channels = channel_shares(fc.preps, best.residuals, &res.warnings);
   mark_model_limited(&res);
   add_fixed_estimates(options, &res);
@@ -398,8 +426,8 @@ std::string FitResult::report() const {
       what = "SE n/a  NOT IDENTIFIED";
     } else if (e.free) {
       what = fmt::format("SE {:.3g} ({:.2g} %)", e.se, 100.0 * e.rel_se);
-      what += e.identifiable && std::isfinite(e.ci_low) ? fmt::format("  95 % [{:.4g}, {:.4g}]", e.ci_low, e.ci_high)
-                                                         : (e.identifiable ? "" : "  NOT IDENTIFIED");
+      if (std::isfinite(e.ci_low)) what += fmt::format("  95 % [{:.4g}, {:.4g}] ({})", e.ci_low, e.ci_high, e.interval);
+      if (!e.identifiable) what += "  NOT IDENTIFIED" + (e.note.empty() ? "" : ": " + e.note);
       if (e.model_limited) what += "  model-limited";
     }
     os << fmt::format("  {:<16} {:>12.6g}  {}\n", e.name, e.value, what);

@@ -45,9 +45,10 @@
 // start range); all starts are screened by cost, and Levenberg-Marquardt (Ceres,
 // automatic differentiation through the templated simulation) runs from the
 // best start of every ordering and the best overall, spread over threads.
-// Distinct optima that fit within noise of the best are reported
-// (FitResult::alternatives) and the parameters that differ between them are
-// marked not identifiable instead of silently picking one. Simulated
+// Model 4 also runs from the conjugate of its best optimum: the layers' two
+// natural frequencies are met by two pairs (k2, k3) (and (r2, r3)), the one
+// fitted and one with the layers' roles exchanged in part, and drops of one
+// kind often do not tell them apart (fitting/detail/identify.h). Simulated
 // annealing (Corana et al. 1987, fitting/anneal.h) runs on the same
 // objective with the contact shifts profiled out. Model 5 has exact
 // derivatives too (fitting/model5_impl.h, dual numbers through its implicit
@@ -68,9 +69,17 @@
 //   through d residuals / d input into the parameters' covariance (the
 //   estimate is the one at the measured inputs; their errors widen it).
 // 95 % intervals are symmetric in the optimiser's coordinates (log
-// stiffness and damping: value x exp(+-1.96 relative SE)); a parameter at
-// its bound, in a direction the data do not constrain, or in another basin
-// that fits as well has no interval and is reported not identifiable.
+// stiffness and damping: value x exp(+-1.96 relative SE)) where the model is
+// linear enough there; where it is not (the cost at a Wald end departs from
+// the linear prediction), and for a parameter at its bound or weakly
+// determined, the interval is the profile likelihood's, calibrated to the
+// error budget (fitting/detail/identify.h): asymmetric, or reaching the
+// search bound (then the parameter is not identifiable: the bound limits
+// it). Another optimum the data do not reject (likelihood ratio under the
+// AR(1) noise at most 3.84: chi-square, one degree of freedom, 95 %) makes
+// each parameter whose value there lies outside its interval not
+// identifiable, its interval spanning both basins (the reason in note).
+// A direction the data do not constrain leaves no interval at all.
 // A parameter is `model_limited` when a channel's residual stays above its
 // noise (RMS over 1.5 noise SDs with lag-1 correlation over 0.5): its
 // interval then holds the residual's structure, not the noise alone.
@@ -204,7 +213,6 @@ struct FitOptions {
   int follow_chunk_iterations = 10;    // the followed runs go on in chunks of this many iterations;
   double drop_factor = 3.0;            //   after each, a run above this factor of the best cost
   double drop_gain = 0.3;              //   that gained less than this fraction in the chunk stops
-  double basin_tolerance = 1.0;        // alternatives within this many chi-square(p, 95 %) units
 
   // Validation.
   bool leave_one_out = false;
@@ -227,6 +235,13 @@ struct ParameterEstimate {
   double ci_high = std::numeric_limits<double>::quiet_NaN();
   double se_white = std::numeric_limits<double>::quiet_NaN();
   bool model_limited = false;  // a channel's residual stays above its noise (see above)
+  // How [ci_low, ci_high] was found: "wald", "profile", "basins" (spanning
+  // this optimum's interval and another basin's), "" (none).
+  std::string interval;
+  std::string note;  // why the parameter is not identifiable, or what limits its interval
+  // With interval "basins": the best optimum's own interval.
+  double basin_ci_low = std::numeric_limits<double>::quiet_NaN();
+  double basin_ci_high = std::numeric_limits<double>::quiet_NaN();
 };
 
 // A predicted quantity and its 95 % interval for the true value.
@@ -240,6 +255,9 @@ struct PredictionInterval {
 struct Prediction {
   PredictionInterval peak_force_n, time_to_peak_s, max_deformation_m;  // time from the contact
   Eigen::VectorXd force_low_n, force_high_n;  // the force-time band on the trial's samples (t_s)
+  // The SE the trial's fitted contact instant inherits from the parameters
+  // and the inputs (a held-out trial's shift is fitted with them held).
+  double contact_shift_se_s = std::numeric_limits<double>::quiet_NaN();
 };
 
 struct TrialReport {
@@ -247,6 +265,9 @@ struct TrialReport {
   bool train = false;
   double impact_velocity_m_s = 0.0;
   double contact_shift_s = 0.0;     // fitted contact instant on the force clock minus the estimate
+  // Its SE: a training trial's from the joint error budget; a held-out
+  // trial's from its own residuals (AR(1), the parameters held) and what it
+  // inherits from the parameters and its inputs (Prediction).
   double contact_shift_se_s = std::numeric_limits<double>::quiet_NaN();
   Characteristics measured, simulated;
   ForceComparison comparison;                // over the trial's contact window

@@ -2,7 +2,6 @@
 #include "fitting/detail/search.h"
 
 #include <ceres/ceres.h>
-#include <boost/math/distributions/chi_squared.hpp>
 #include <fmt/format.h>
 
 #include <algorithm>
@@ -20,7 +19,7 @@ namespace dropfit::fitting::internal {
 // Levenberg-Marquardt from u0 (shifts profiled at u0 to start).
 Optimum run_ceres(const std::vector<Prepared>& preps, const ParamSpace& space, const FitOptions& o,
                   const Eigen::VectorXd& u0, std::atomic<long>* evals, bool want_jacobian,
-                  const std::vector<double>* shifts0, double radius0) {
+                  const std::vector<double>* shifts0, double radius0, int hold) {
   Optimum best;
   std::vector<double> u(u0.data(), u0.data() + u0.size());
   std::vector<double> shifts(preps.size(), 0.0);
@@ -35,6 +34,8 @@ Optimum run_ceres(const std::vector<Prepared>& preps, const ParamSpace& space, c
   }
   std::vector<double*> blocks;
   auto problem = make_problem(preps, space, o, u.data(), shifts, evals, &blocks);
+  if (hold >= 0 && space.size() > 1) problem->SetManifold(u.data(), new ceres::SubsetManifold(space.size(), {hold}));
+  else if (hold >= 0) problem->SetParameterBlockConstant(u.data());
   ceres::Solver::Options so;
   so.linear_solver_type = ceres::DENSE_QR;
   so.max_num_iterations = o.max_iterations;
@@ -84,14 +85,6 @@ Optimum run_ceres(const std::vector<Prepared>& preps, const ParamSpace& space, c
   return best;
 }
 
-namespace {
-
-// The chi-square distribution's 95 % quantile (Boost.Math).
-double chi2_quantile_95(int dof) {
-  return boost::math::quantile(boost::math::chi_squared_distribution<double>(std::max(dof, 1)), 0.95);
-}
-
-}  // namespace
 
 namespace {
 
@@ -293,47 +286,6 @@ Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, con
   s.best = run_ceres(preps, space, one, runs[best_k].u, evals, true, &runs[best_k].shifts);
   s.best.cost = runs[best_k].cost;
   return s;
-}
-
-// Other basins that fit within noise of the best: reported, and the
-// parameters that differ between them marked not identifiable.
-void alternatives(const Search& s, const ParamSpace& space, const FitOptions& o, FitResult* res) {
-  const double m = static_cast<double>(s.best.residuals.size());
-  const int p = space.size();
-  if (!(m > p)) return;
-  const double s2 = std::max(2.0 * s.best.cost / (m - p), 1.0);  // residual variance in noise units (>= 1)
-  const double limit = o.basin_tolerance * chi2_quantile_95(p);
-  std::vector<Eigen::VectorXd> kept = {s.best.u};
-  std::vector<Optimum> sorted = s.others;
-  std::sort(sorted.begin(), sorted.end(), [](const Optimum& a, const Optimum& b) { return a.cost < b.cost; });
-  for (const auto& other : sorted) {
-    const double d = 2.0 * (other.cost - s.best.cost) / s2;
-    if (d > limit) break;
-    bool distinct = true;
-    for (const auto& u : kept)
-      if ((other.u - u).cwiseAbs().maxCoeff() < 0.2) distinct = false;  // the same basin (20 % in log)
-    if (!distinct) continue;
-    kept.push_back(other.u);
-    Alternative a;
-    a.params = space.to_mat(other.u.data());
-    a.cost = other.cost;
-    a.delta_chi2 = d;
-    res->alternatives.push_back(a);
-    std::vector<std::string> differ;
-    for (int j = 0; j < p; ++j) {
-      if (std::abs(other.u[j] - s.best.u[j]) < 0.2) continue;
-      differ.push_back(param_display(space.free[j]));
-      for (auto& e : res->estimates)
-        if (e.name == param_display(space.free[j])) e.identifiable = false;
-    }
-    std::string alt;
-    for (int j = 0; j < p; ++j)
-      alt += fmt::format("{}{} {:.4g}", alt.empty() ? "" : ", ", param_display(space.free[j]),
-                         space.value_of(space.free[j], other.u[j]));
-    res->warnings.push_back(fmt::format(
-        "not identifiable: another basin fits within noise (delta chi-square {:.2g} <= {:.3g}): {}; differing: {}", d,
-        limit, alt, fmt::join(differ, ", ")));
-  }
 }
 
 }  // namespace dropfit::fitting::internal

@@ -74,8 +74,10 @@ void covariance(const Optimum& opt, const ParamSpace& space, const FitOptions& o
       e.ci_low = e.value - kZ95 * e.se;
       e.ci_high = e.value + kZ95 * e.se;
     }
+    e.interval = "wald";
     if (!(e.rel_se <= o.identifiability_rel_se)) {
       e.identifiable = false;
+      e.note = fmt::format("weakly determined: relative SE {:.2g}", e.rel_se);
       warnings->push_back(fmt::format("{} is not pinned down by the data (relative SE {:.2g})", e.name, e.rel_se));
     }
     // Within a thousandth of the span a parameter is searched over (not of
@@ -94,8 +96,12 @@ void covariance(const Optimum& opt, const ParamSpace& space, const FitOptions& o
         warnings->push_back(fmt::format("{} sits at its bound ({:.6g})", e.name, e.value));
       e.identifiable = false;
       e.at_bound = true;
+      e.note = fmt::format("at the bound of its search range ({:.6g}): the bound, not the data, sets it", e.value);
     }
-    if (!e.identifiable) e.ci_low = e.ci_high = kNaN;
+    if (!e.identifiable) {
+      e.ci_low = e.ci_high = kNaN;
+      e.interval.clear();
+    }
   }
   for (int a = 0; a < np; ++a)
     for (int b = a + 1; b < np; ++b) {
@@ -343,13 +349,28 @@ Prediction prediction_intervals(const TrialData& td, const TrialReport& rep, con
   out.peak_force_n = interval(q0.peak_n, 0);
   out.time_to_peak_s = interval(q0.t_peak_s, 1);
   out.max_deformation_m = interval(q0.max_travel_m, 2);
+  // The fitted contact instant moves with the parameters and the velocity:
+  // profiled over the force window, ds/dq = sum F' dF/dq / sum F'^2 (the
+  // simulated force F(t - s), F' its slope, the fit's equal weights).
+  Eigen::VectorXd slope = Eigen::VectorXd::Zero(n);
+  for (Eigen::Index i = 1; i + 1 < n; ++i) slope[i] = (f0[i + 1] - f0[i - 1]) / (td.t_s[i + 1] - td.t_s[i - 1]);
+  Eigen::RowVectorXd num = Eigen::RowVectorXd::Zero(np + 1);
+  double den = 0.0;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (td.t_s[i] < shift - o.contact_search_s || td.t_s[i] > rep.window_end_s) continue;
+    num += slope[i] * gf.row(i);
+    den += slope[i] * slope[i];
+  }
+  if (den > 0.0) {
+    const Eigen::RowVectorXd ds = num / den;
+    out.contact_shift_se_s = std::sqrt(variance(ds.head(np).transpose(), ds[np]));
+  }
   // The force-time band: parameters, velocity and the trial's clock shift.
   out.force_low_n.resize(n);
   out.force_high_n.resize(n);
   const double sse = std::isfinite(rep.contact_shift_se_s) ? rep.contact_shift_se_s : 0.0;
   for (Eigen::Index i = 0; i < n; ++i) {
-    const double slope = i > 0 && i + 1 < n ? (f0[i + 1] - f0[i - 1]) / (td.t_s[i + 1] - td.t_s[i - 1]) : 0.0;
-    const double sd = std::sqrt(variance(gf.row(i).head(np).transpose(), gf(i, np)) + slope * slope * sse * sse);
+    const double sd = std::sqrt(variance(gf.row(i).head(np).transpose(), gf(i, np)) + slope[i] * slope[i] * sse * sse);
     out.force_low_n[i] = f0[i] - kZ95 * sd;
     out.force_high_n[i] = f0[i] + kZ95 * sd;
   }
@@ -398,6 +419,10 @@ void add_prediction_intervals(const std::vector<TrialData>& trials, const std::v
   }
   for (TrialReport& r : res->trials) {
     const TrialData* td = data_of(r);
+    // A held-out trial's shift was fitted with the parameters held: what it
+    // inherits from them and its velocity adds to its own noise's part.
+    if (!r.train && std::isfinite(r.contact_shift_se_s) && std::isfinite(r.prediction.contact_shift_se_s))
+      r.contact_shift_se_s = std::hypot(r.contact_shift_se_s, r.prediction.contact_shift_se_s);
     const double video_se = td && std::isfinite(td->contact_time_se_s) ? td->contact_time_se_s : 0.0;
     if (std::isfinite(r.contact_shift_se_s)) r.offset_se_s = std::hypot(r.contact_shift_se_s, video_se);
   }

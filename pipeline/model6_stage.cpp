@@ -125,8 +125,11 @@ void apply_model6_offsets(SessionState& state) {
       const double onset = std::isfinite(r.video_offset_onset_s) ? r.video_offset_onset_s : r.video_offset_s;
       r.video_offset_onset_s = onset;
       r.video_offset_s = onset - rep.contact_shift_s;
-      r.video_offset_se_s = rep.contact_shift_se_s;
-      if (std::isfinite(r.video_offset_se_s)) ss_se += r.video_offset_se_s * r.video_offset_se_s, ++n;
+      // The fitted contact's SE and the video contact instant's own.
+      r.video_offset_se_s = std::isfinite(r.video_contact_time_se_s)
+                                ? std::hypot(rep.contact_shift_se_s, r.video_contact_time_se_s)
+                                : rep.contact_shift_se_s;
+      if (std::isfinite(rep.contact_shift_se_s)) ss_se += rep.contact_shift_se_s * rep.contact_shift_se_s, ++n;
       results.back() = r;
     }
   }

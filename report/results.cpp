@@ -277,6 +277,10 @@ std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg, con
                          {"at_bound", e.at_bound},
                          {"ci_low_95", number_or_null(e.ci_low)},
                          {"ci_high_95", number_or_null(e.ci_high)},
+                         {"interval", e.interval.empty() ? json(nullptr) : json(e.interval)},
+                         {"note", e.note},
+                         {"ci_low_95_this_basin", number_or_null(e.basin_ci_low)},
+                         {"ci_high_95_this_basin", number_or_null(e.basin_ci_high)},
                          {"se_white_noise", number_or_null(e.se_white)},
                          {"model_limited", e.model_limited}});
   }

@@ -67,11 +67,16 @@ void final_model_section(HtmlDocument& doc, const SessionReport& r) {
   }
   std::vector<std::vector<std::string>> rows;
   for (const auto& e : fit.estimates) {
-    std::string note = !e.identifiable ? "not identified" : e.at_bound ? "at its bound" : e.free ? "" : "fixed";
+    std::string note = !e.identifiable ? "not identifiable" : e.at_bound ? "at its bound" : e.free ? "" : "fixed";
+    if (!e.identifiable && !e.note.empty()) note += ": " + e.note;
+    const std::string ci = e.free && std::isfinite(e.ci_low)
+                               ? fmt::format("[{:.4g}, {:.4g}] ({})", e.ci_low, e.ci_high, e.interval)
+                               : "-";
     rows.push_back({e.name, fmt::format("{:.4g}", e.value), e.free && std::isfinite(e.se) ? fmt::format("{:.2g}", e.se) : "-",
-                    note});
+                    ci, note});
   }
-  doc.table({"parameter", "value", "standard error", "note"}, rows, "The final model's parameters (SI units)", 1);
+  doc.table({"parameter", "value", "standard error", "95 % interval", "note"}, rows,
+            "The final model's parameters (SI units)", 1);
   for (const auto& w : fit.warnings) doc.note(w);
 }
 
@@ -192,7 +197,7 @@ void parameters_section(HtmlDocument& doc, const SessionReport& r) {
         any = true;
         cell = std::isfinite(e.se) && e.free ? fmt::format("{:.4g} ± {:.2g}", e.value, e.se) : fmt::format("{:.4g}", e.value);
         if (e.free && std::isfinite(e.ci_low)) cell += fmt::format(" [{:.4g}, {:.4g}]", e.ci_low, e.ci_high);
-        if (!e.identifiable) cell += " (not identified)";
+        if (!e.identifiable) cell += " (not identifiable)";
         if (e.model_limited) cell += " (model-limited)";
       }
       row.push_back(cell);

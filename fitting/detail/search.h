@@ -1,7 +1,7 @@
 #pragma once
 // The fitter's search (internal to fitting/): Levenberg-Marquardt (Ceres)
 // from the screened starts, followed in chunks while they stay in reach of
-// the best, or simulated annealing; other optima that fit within noise.
+// the best, or simulated annealing.
 #include <Eigen/Core>
 #include <atomic>
 #include <limits>
@@ -30,19 +30,17 @@ struct Search {
 };
 
 // Levenberg-Marquardt from u0 (shifts profiled at u0 to start, unless
-// given; radius0 > 0: the trust region a continued run keeps).
+// given; radius0 > 0: the trust region a continued run keeps; hold >= 0:
+// that coordinate stays at u0's value, the others are fitted: a point of
+// its profile likelihood).
 Optimum run_ceres(const std::vector<Prepared>& preps, const ParamSpace& space, const FitOptions& o,
                   const Eigen::VectorXd& u0, std::atomic<long>* evals, bool want_jacobian,
-                  const std::vector<double>* shifts0 = nullptr, double radius0 = 0.0);
+                  const std::vector<double>* shifts0 = nullptr, double radius0 = 0.0, int hold = -1);
 
 // Multi-start: every candidate screened by cost; Levenberg-Marquardt from
 // the best candidate of each spring ordering and the best overall, in
 // parallel (or annealing, as the options say). `used` names the optimiser.
 Search optimise(const std::vector<Prepared>& preps, const ParamSpace& space, const FitOptions& o, double k_eff,
                 std::atomic<long>* evals, std::vector<std::string>* warnings, std::string* used);
-
-// Other basins that fit within noise of the best: reported, and the
-// parameters that differ between them marked not identifiable.
-void alternatives(const Search& s, const ParamSpace& space, const FitOptions& o, FitResult* res);
 
 }  // namespace dropfit::fitting::internal
