@@ -420,11 +420,12 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
 // force passed through the filter, with the corner profiled. The profile
 // runs over the group delay tau (0: no filter) on a grid: at each point the
 // mat model is refitted jointly to every accepted trial (its parameters by
-// a Gauss-Newton step, derivatives by forward differences, from the joint
+// two Gauss-Newton steps, derivatives by forward differences, each delay
+// starting from the optimum of the one before, the first from the joint
 // optimum without a filter; each trial's clock shift profiled exactly at
 // every evaluation), chi-square = the residual's sum of squares in noise
-// units (force and travel) at the parameters the step reaches. Judged as
-// the loop judges a term:
+// units (force and travel) at the parameters reached. Judged as the loop
+// judges a term:
 //   held out  each trial's chi-square at the delay the other trials' profile
 //             chooses, against its chi-square without a filter (paired over
 //             trials; the joint fits' parameters include the trial, so this
@@ -454,7 +455,6 @@ struct LowpassStageOptions {
   double max_rms_sd = 1.5;          // the joint fit's residual within this many noise SDs ...
   double max_lag1 = 0.5;            //   ... or this lag-1 autocorrelation: the model reaches the noise
   double min_ambiguity_s = 0.1e-3;  // a lag range narrower than this is not worth reporting
-  int threads = 2;
 };
 
 struct LowpassDiagnosis {

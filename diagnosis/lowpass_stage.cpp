@@ -11,7 +11,6 @@
 #include <utility>
 #include <vector>
 
-#include "core/parallel.h"
 #include "diagnosis/diagnosis.h"
 #include "diagnosis/internal.h"
 #include "fitting/force_lowpass.h"
@@ -188,8 +187,20 @@ std::vector<ProfilePoint> run_profile(const std::vector<fitting::TrialData>& acc
   std::vector<double> grid = options.delays_s;
   std::sort(grid.begin(), grid.end());
   std::vector<ProfilePoint> pts(grid.size());
-  auto refined = [&](double delay) { return profile_point(acc, wide, joint, delay); };
-  parallel_for(grid.size(), options.threads, [&](std::size_t i) { pts[i] = refined(grid[i]); });
+  // Two Gauss-Newton steps at each delay, by continuation: each delay
+  // starts from the optimum of the one before (a large delay moves the
+  // mat's parameters further than one step from no filter reaches).
+  auto refined = [&](double delay, const fitting::MatParams& from) {
+    ProfilePoint p = profile_point(acc, wide, from, delay);
+    if (!p.ok) return p;
+    ProfilePoint q = profile_point(acc, wide, p.params, delay);
+    return q.ok && q.chi2 < p.chi2 ? q : p;
+  };
+  fitting::MatParams from = joint;
+  for (std::size_t i = 0; i < grid.size(); ++i) {
+    pts[i] = refined(grid[i], from);
+    if (pts[i].ok) from = pts[i].params;
+  }
   std::erase_if(pts, [](const ProfilePoint& p) { return !p.ok; });
   if (pts.size() < 3) return pts;
   std::size_t m = 0;
@@ -203,7 +214,7 @@ std::vector<ProfilePoint> run_profile(const std::vector<fitting::TrialData>& acc
     const double b = (x2 * x2 * (y0 - y1) + x1 * x1 * (y2 - y0) + x0 * x0 * (y1 - y2)) / den;
     const double xv = a > 0.0 ? -b / (2.0 * a) : x1;
     if (xv > x0 && xv < x2 && std::abs(xv - x1) > 0.01e-3) {
-      ProfilePoint p = refined(xv);
+      ProfilePoint p = refined(xv, pts[m].params);
       if (p.ok) pts.push_back(std::move(p));
     }
   }
