@@ -11,6 +11,7 @@
 
 #include "core/error.h"
 #include "diagnosis/internal.h"
+#include "fitting/force_lowpass.h"
 
 namespace dropfit::diagnosis {
 namespace {
@@ -167,7 +168,7 @@ std::vector<PlateTrial> plate_trials(const SessionData& state, double offset_s) 
 // See diagnosis.h.
 double trajectory_estimate_bias_s(fitting::ModelKind model, const fitting::MatParams& params, double velocity_m_s,
                                   double mass_kg, double gravity_m_s2, const PlateCorrection& plate,
-                                  double contact_time_s) {
+                                  double contact_time_s, double force_lowpass_hz) {
   fitting::Impact imp;
   imp.mass_kg = mass_kg;
   imp.velocity_m_s = velocity_m_s;
@@ -185,6 +186,12 @@ double trajectory_estimate_bias_s(fitting::ModelKind model, const fitting::MatPa
   const double end = std::isfinite(sim.separation_s) ? sim.separation_s : sim.t_s(n - 1);
   // What the plate reads: gain x force + drift (PlateCorrection::apply inverted).
   Eigen::VectorXd read_n = plate.gain * sim.grf_n;
+  if (force_lowpass_hz > 0.0) {
+    // ... through the force channel's low-pass, when one was found.
+    std::vector<double> v(read_n.data(), read_n.data() + n);
+    fitting::force_lowpass(v, imp.output_dt_s, force_lowpass_hz);
+    read_n = Eigen::Map<const Eigen::VectorXd>(v.data(), n);
+  }
   if (plate.drift && std::isfinite(contact_time_s)) {
     const Eigen::VectorXd t_force = sim.t_s.array() + contact_time_s;
     read_n -= plate.gain * plate.apply(t_force, Eigen::VectorXd::Zero(n), contact_time_s);
@@ -220,7 +227,8 @@ void not_assessed(DiagnosisResult& result, const std::string& stage, const std::
 std::optional<SyncDiagnosis> rejudge_sync(const std::vector<trial::TrialResult>& results,
                                           const fitting::FitResult& fit, const SyncStageOptions& options,
                                           double onset_offset_s, double mass_kg, double gravity_m_s2,
-                                          const PlateCorrection& plate, bool model_explains) {
+                                          const PlateCorrection& plate, bool model_explains,
+                                          double force_lowpass_hz) {
   std::vector<trial::TrialResult> fitted = results;
   int n = 0;
   for (auto& r : fitted) {
@@ -234,7 +242,8 @@ std::optional<SyncDiagnosis> rejudge_sync(const std::vector<trial::TrialResult>&
       // with a 0.88 ms contact shift, and the corrected estimate agreed).
       if (model_explains && std::isfinite(r.video_offset_trajectory_s))
         r.video_offset_trajectory_s -= trajectory_estimate_bias_s(fit.model, fit.params, r.impact_velocity_m_s,
-                                                                  mass_kg, gravity_m_s2, plate, r.contact_time_s);
+                                                                  mass_kg, gravity_m_s2, plate, r.contact_time_s,
+                                                                  force_lowpass_hz);
       ++n;
     }
   }
@@ -271,6 +280,13 @@ std::optional<SyncDiagnosis> rejudge_sync(const std::vector<trial::TrialResult>&
 
 namespace {
 
+// A named value of an error set (NaN when absent).
+double value_of(const ErrorSet& set, const std::string& name) {
+  for (const auto& [k, v] : set)
+    if (k == name) return v;
+  return kNaN;
+}
+
 // The accepted trials' fit data with the plate's gain and drift taken out.
 std::vector<fitting::TrialData> corrected_mat_data(const SessionData& state, const PlateCorrection& correction) {
   std::vector<fitting::TrialData> data;
@@ -287,6 +303,36 @@ std::vector<fitting::TrialData> corrected_mat_data(const SessionData& state, con
     data.push_back(std::move(c));
   }
   return data;
+}
+
+}  // namespace
+
+namespace {
+
+// After the mat stage: the force channel's undeclared low-pass, where the
+// model reaches the noise (its lag otherwise reads as clock offset), then
+// sync once more, on the contacts the final mat model fits (through the
+// filter when one was named), told what the low-pass profile found.
+std::optional<LowpassDiagnosis> force_channel_and_sync(const SessionData& state, const DiagnosisOptions& options,
+                                                       const std::vector<fitting::TrialData>& data,
+                                                       const MatDiagnosis& md, double explained_sd,
+                                                       const std::vector<trial::TrialResult>& sync_results,
+                                                       const PlateCorrection& correction,
+                                                       std::optional<SyncDiagnosis>& sync) {
+  std::optional<LowpassDiagnosis> lowpass;
+  if (options.force_lowpass && md.fit_after)
+    lowpass = diagnose_force_lowpass(data, md.options_after, md.fit_after->params,
+                                     value_of(md.error_after, "heldout_force_rms_noise_sd"),
+                                     value_of(md.error_after, "heldout_impactor_rms_noise_sd"), explained_sd,
+                                     options.lowpass_stage);
+  const bool filtered = lowpass && lowpass->named;
+  if (sync && md.fit_after)
+    if (auto refit = rejudge_sync(sync_results, filtered ? *lowpass->fit : *md.fit_after, options.sync_stage,
+                                  sync->offset_s, state.impactor_mass_kg, state.gravity_m_s2, correction,
+                                  md.remaining.empty(), filtered ? lowpass->corner_hz : 0.0))
+      sync = std::move(refit);
+  if (sync && lowpass) detail::attribute_lag(*sync, *lowpass, options.lowpass_stage.min_ambiguity_s);
+  return lowpass;
 }
 
 }  // namespace
@@ -394,12 +440,10 @@ DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& optio
           "between trials, so no single set of parameters describes them all");
     } else if (!data.empty()) {
       const MatDiagnosis md = diagnose_mat(data, mo);
-      // Sync once more, on the contacts the final mat model fits.
-      if (sync && md.fit_after)
-        if (auto refit = rejudge_sync(sync_results, *md.fit_after, options.sync_stage, sync->offset_s,
-                                      state.impactor_mass_kg, state.gravity_m_s2, correction, md.remaining.empty()))
-          sync = std::move(refit);
+      const std::optional<LowpassDiagnosis> lowpass =
+          force_channel_and_sync(state, options, data, md, mo.unexplained_noise_sd, sync_results, correction, sync);
       flush();
+      if (lowpass) append(result, *lowpass);
       append(result, md);
       const bool corrected = correction.drift || correction.gain != 1.0;
       if ((!md.effects.empty() || corrected) && md.fit_after) result.mat_fit = md.fit_after;

@@ -317,7 +317,8 @@ struct PlateTrial {
 // accelerated mass, and the plate's gain and drift, which the force-plate
 // stage finds after the trial was analysed. So the model's plate force is
 // read through `plate` (the trial's contact at contact_time_s on the force
-// clock; NaN: gain only), and the same least squares over the shift (+-5 ms,
+// clock; NaN: gain only) and through the force channel's low-pass when one
+// was named (force_lowpass_hz; 0: none), and the same least squares over the shift (+-5 ms,
 // 0.01 ms grid, then a parabola) runs on the model's samples every 0.1 ms
 // over the contact. Blind test, trajectory estimate minus the true offset:
 // 274 trials with a clean plate -0.20 +- 0.07 ms, after subtracting this
@@ -325,7 +326,8 @@ struct PlateTrial {
 // 0.10 +- 0.23 ms. NaN when the model cannot be simulated.
 double trajectory_estimate_bias_s(fitting::ModelKind model, const fitting::MatParams& params, double velocity_m_s,
                                   double mass_kg, double gravity_m_s2, const PlateCorrection& plate = {},
-                                  double contact_time_s = std::numeric_limits<double>::quiet_NaN());
+                                  double contact_time_s = std::numeric_limits<double>::quiet_NaN(),
+                                  double force_lowpass_hz = 0.0);
 
 // The impulse-momentum balance of one trial ending in the impactor's free
 // flight after separation (see the top of this file): the ratio's mean over
@@ -430,6 +432,82 @@ struct MatDiagnosis {
 };
 
 MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const MatStageOptions& options = {});
+
+// ---- Force channel --------------------------------------------------------------
+//
+// An undeclared low-pass between the mat and the plate's samples (a charge
+// amplifier's anti-alias filter, a 2nd-order Butterworth) delays the force
+// by its group delay, 0.225 ms x 1 kHz / corner, and a pure delay of the
+// force reads exactly as a clock offset. What tells them apart is the
+// filter's shape beyond the delay (its phase departs from a delay in the
+// third order of frequency, fitting/force_lowpass.h): the mat model's plate
+// force passed through the filter, with the corner profiled. The profile
+// runs over the group delay tau (0: no filter) on a grid: at each point the
+// mat model is refitted jointly to every accepted trial (its parameters by
+// two Gauss-Newton steps, derivatives by forward differences, each delay
+// starting from the optimum of the one before, the first from the joint
+// optimum without a filter; each trial's clock shift profiled exactly at
+// every evaluation), chi-square = the residual's sum of squares in noise
+// units (force and travel) at the parameters reached. Judged as the loop
+// judges a term:
+//   held out  each trial's chi-square at the delay the other trials' profile
+//             chooses, against its chi-square without a filter (paired over
+//             trials; the joint fits' parameters include the trial, so this
+//             tests the corner's choice, not the mat's);
+//   criterion AICc on the joint fits, with the residual's AR(1) effective N
+//             (the chi-square differences of the interval shrink alike).
+// Only where the lumped model reaches the noise (the mat stage's held-out
+// errors within what it counts as explained, and the joint fit with the
+// filter at its best not structured): where it does not, a filter term
+// would soak up the model's error, and the term is not tried (a note says
+// so). The shape a filter leaves grows as the cube of its delay, and a mat
+// model's own parameters absorb much of it: at 3 N of plate noise on a
+// Model 4 chain a 250 Hz corner is named, while 350 Hz and above fit
+// within the noise with no filter (docs/diagnosis.md). When named
+// ("force_lowpass", stage forceplate): the corner with its profile-
+// likelihood interval (one-sided when the data only bound it), and the fit
+// with the filter places each contact, so the clock offset the sync stage
+// reports is the clock's. When not named but the profile allows a filter
+// (its 95 % set reaches beyond tau = 0 by more than min_ambiguity_s), the
+// lag is ambiguous between clock and force channel: the clock offsets it
+// allows are reported with the offset.
+struct LowpassStageOptions {
+  DecisionOptions decision;
+  // Group delays profiled (s); 0 is the model without the filter.
+  std::vector<double> delays_s{0.0, 0.15e-3, 0.3e-3, 0.45e-3, 0.6e-3, 0.8e-3, 1.0e-3, 1.25e-3};
+  double interval_chi2 = 3.84;      // 95 % profile-likelihood interval (one parameter)
+  double max_rms_sd = 1.5;          // the joint fit's residual within this many noise SDs ...
+  double max_lag1 = 0.5;            //   ... or this lag-1 autocorrelation: the model reaches the noise
+  double min_ambiguity_s = 0.1e-3;  // a lag range narrower than this is not worth reporting
+};
+
+struct LowpassDiagnosis {
+  std::vector<Effect> effects;
+  std::vector<Rejected> rejected;
+  std::vector<Remaining> remaining;
+  std::vector<std::string> notes;
+  bool tried = false;                 // the model reached the noise and the profile ran
+  bool named = false;
+  double corner_hz = 0.0;             // named: the profile's best corner
+  double delay_s = 0.0;               //   and its group delay
+  // The group delays within the profile's 95 % set (s); delay_low_s = 0
+  // when no filter fits as well (the corner is then only bounded below).
+  double delay_low_s = 0.0, delay_high_s = 0.0;
+  std::vector<double> profile_delay_s, profile_chi2;  // the profile (chi-square over its minimum)
+  // Named: every trial predicted by the joint fit with the filter (its
+  // contact shifts place the contacts the sync stage re-judges), and its options.
+  std::optional<fitting::FitResult> fit;
+  fitting::FitOptions fit_options;
+};
+
+// trials: the mat stage's data (accepted ones used); model: the mat stage's
+// final options; start: its optimum; held_out_*_sd: its final held-out force
+// and travel errors, and explained_sd what it counts as explained (noise SDs).
+// Models 1-4 only.
+LowpassDiagnosis diagnose_force_lowpass(const std::vector<fitting::TrialData>& trials,
+                                        const fitting::FitOptions& model, const fitting::MatParams& start,
+                                        double held_out_force_sd, double held_out_impactor_sd,
+                                        double explained_sd, const LowpassStageOptions& options = {});
 
 // ---- Between trials ----------------------------------------------------------
 //
@@ -546,6 +624,8 @@ struct SessionData {
 
 struct DiagnosisOptions {
   bool calibration = true, sync = true, forceplate = true, mat = true, order = true;
+  bool force_lowpass = true;                // the undeclared force-channel low-pass (after the mat stage)
+  LowpassStageOptions lowpass_stage;
   OrderStageOptions order_stage;
   SyncStageOptions sync_stage;
   ForceplateStageOptions forceplate_stage;  // impactor mass and gravity taken from the state

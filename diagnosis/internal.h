@@ -65,4 +65,11 @@ inline double sample_sd(const Eigen::VectorXd& v) {
   return std::sqrt((v.array() - v.mean()).square().sum() / static_cast<double>(v.size() - 1));
 }
 
+// The sync verdict told what the force-channel low-pass profile found: a
+// named filter's lag is the force channel's (the offset, judged on contacts
+// the filtered model placed, is the clock's); an unidentified one leaves
+// the lag ambiguous, and the clock offsets it allows are reported
+// (diagnosis/lowpass_stage.cpp).
+void attribute_lag(SyncDiagnosis& sync, const LowpassDiagnosis& lowpass, double min_ambiguity_s);
+
 }  // namespace dropfit::diagnosis::detail

@@ -55,6 +55,7 @@ void check_options(const FitOptions& o) {
   if (!(o.force_noise_n > 0.0) || !(o.marker_noise_m > 0.0))
     throw Error("fit: force_noise_n and marker_noise_m must be positive");
   if (!(o.m1_kg >= 0.0) || !(o.m2_kg >= 0.0)) throw Error("fit: layer masses must be >= 0");
+  if (!(o.force_lowpass_hz >= 0.0)) throw Error("fit: force_lowpass_hz must be >= 0 (0: none)");
   if (o.starts < 1) throw Error("fit: starts must be at least 1");
   if (!(o.contact_shift_min_s <= 0.0) || !(o.contact_shift_max_s >= 0.0) || !(o.contact_search_s >= 0.0) ||
       !(o.contact_search_s >= -o.contact_shift_min_s))
@@ -264,11 +265,12 @@ TrialReport predict(const TrialData& trial, const MatParams& params, const FitOp
   const double v0 = trial.impact_velocity_m_s, g = trial.gravity_m_s2;
   // The force exactly on the shifted samples (one more simulation, so that
   // `dropfit simulate --first-output` reproduces the reported curve): from
-  // the first sample at or after the fitted contact.
+  // the first sample at or after the fitted contact. A force-channel
+  // low-pass keeps the grid's filtered values.
   Eigen::Index i_c = 0;
   while (i_c < n && trial.t_s[i_c] - shift < 0.0) ++i_c;
   Eigen::VectorXd exact_grf;
-  if (i_c < n) {
+  if (i_c < n && !(options.force_lowpass_hz > 0.0)) {
     Impact imp = p.impact;
     imp.output_dt_s = p.dt;
     imp.first_output_s = std::clamp(trial.t_s[i_c] - shift, 0.0, p.dt * (1.0 - 1e-12));

@@ -177,6 +177,11 @@ struct FitOptions {
   double contact_threshold_n = 25.0;   // the contact ends when the measured force stays below this
   double window_margin_s = 0.01;       // fitted past the measured contact's end
   double window_end_s = -1.0;          // > 0: fixed window end instead
+  // A 2nd-order Butterworth low-pass (Hz) on the force channel between the
+  // mat and the plate's samples (fitting/force_lowpass.h): the model's force
+  // passes it before it is compared with the record (0: none). The mat's own
+  // predictions (peak force, intervals, sensitivity) stay the mat's.
+  double force_lowpass_hz = 0.0;
 
   // Optimiser.
   Optimizer optimizer = Optimizer::Ceres;

@@ -11,6 +11,7 @@
 #include "core/cpu_dispatch.h"
 #include "core/error.h"
 #include "core/parallel.h"
+#include "fitting/force_lowpass.h"
 #include "fitting/model5_impl.h"
 
 namespace dropfit::fitting::internal {
@@ -214,6 +215,7 @@ detail::Trace<double> simulate_window(const Prepared& p, const ParamSpace& space
     detail::run_model<double>(layout, detail::to_params_t<double>(shape, mp), p.impact,
                               !space.nonlinear() && !mp.has_effects(), kRk4Step, p.n_grid, tr);
   }
+  force_lowpass(tr.grf, p.h, o.force_lowpass_hz);
   if (evals) ++*evals;
   return tr;
 }
@@ -305,6 +307,7 @@ struct Model5Sim {
                   std::vector<T>* imp) {
     simulate_model5_t<T>(model5_params_t(space.to_params<T>(u)), o.model5_geometry, p.impact, p.n_grid, grf,
                          p.k_idx.empty() ? nullptr : imp, nullptr);
+    force_lowpass(*grf, p.h, o.force_lowpass_hz);
   }
 };
 
@@ -319,6 +322,7 @@ struct ChainSim {
     detail::run_model<T>(layout, space.to_params(u), p.impact, !space.nonlinear(), kRk4Step, p.n_grid, tr);
     *grf = std::move(tr.grf);
     *imp = std::move(tr.impactor);
+    force_lowpass(*grf, p.h, o.force_lowpass_hz);
   }
 };
 
