@@ -141,7 +141,9 @@ struct TrialData {
 
 // A custom simulator (a user's own model); the fitter asks it for the
 // samples of Impact (first_output_s, output_dt_s, duration_s) and
-// differentiates it by central differences.
+// differentiates it by central differences. It is called from several
+// threads at once (the parallel starts and predictions): it must be safe to
+// call concurrently (no unguarded shared state).
 using Simulator = std::function<Simulation(const MatParams&, const Impact&)>;
 
 enum class Optimizer { Ceres, Annealing };

@@ -4,6 +4,8 @@
 // pattern in table mode.
 #include <gtest/gtest.h>
 
+#include <atomic>
+
 #include <cmath>
 #include <fstream>
 #include <random>
@@ -206,7 +208,7 @@ TEST(Fit, FitsThroughASimulatorCallback) {
   o.model = ModelKind::Model3;
   o.sensitivity = false;
   o.starts = 3;
-  int calls = 0;
+  std::atomic<int> calls = 0;  // the fitter calls the simulator from several threads
   o.simulator = [&calls](const MatParams& p, const Impact& imp) {
     ++calls;
     return simulate(ModelKind::Model3, p, imp);
