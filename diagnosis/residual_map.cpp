@@ -7,6 +7,7 @@
 #include <cmath>
 
 #include "diagnosis/diagnosis.h"
+#include "diagnosis/internal.h"
 #include "diagnosis/model_choice.h"
 
 namespace dropfit::diagnosis {
@@ -97,24 +98,11 @@ ResidualMap map_residual(const std::vector<fitting::TrialData>& trials,
   oa.centre = order;
   oa.mean_sd = trial_mean;
   oa.count.assign(order.size(), 1.0);
-  const auto k = static_cast<double>(order.size());
-  if (k >= 3) {
-    double mo = 0.0, mr = 0.0;
-    for (size_t i = 0; i < order.size(); ++i) mo += order[i] / k, mr += trial_mean[i] / k;
-    double sxx = 0.0, sxy = 0.0;
-    for (size_t i = 0; i < order.size(); ++i) sxx += (order[i] - mo) * (order[i] - mo), sxy += (order[i] - mo) * (trial_mean[i] - mr);
-    if (sxx > 0.0) {
-      m.order_slope_sd = sxy / sxx;
-      double rss = 0.0, tot = 0.0;
-      for (size_t i = 0; i < order.size(); ++i) {
-        const double e = trial_mean[i] - mr - m.order_slope_sd * (order[i] - mo);
-        rss += e * e;
-        tot += (trial_mean[i] - mr) * (trial_mean[i] - mr);
-      }
-      const double se = std::sqrt(rss / std::max(k - 2.0, 1.0) / sxx);
-      m.order_slope_t = se > 0.0 ? m.order_slope_sd / se : (m.order_slope_sd != 0.0 ? 1e9 : 0.0);
-      oa.r2 = tot > 0.0 ? 1.0 - rss / tot : 0.0;
-    }
+  const detail::LineFit line = detail::fit_line(order, trial_mean);
+  if (line.ok) {
+    m.order_slope_sd = line.slope;
+    m.order_slope_t = line.slope_se > 0.0 ? line.slope / line.slope_se : (line.slope != 0.0 ? 1e9 : 0.0);
+    oa.r2 = line.r2;
   }
   m.axes.push_back(oa);
 
@@ -122,7 +110,7 @@ ResidualMap map_residual(const std::vector<fitting::TrialData>& trials,
   // unloading apart explain clearly more than deflection and rate.
   const double rx = m.axes[0].r2, rv = m.axes[1].r2, rt = m.axes[2].r2;
   const double best = std::max({rx, rv, rt});
-  if (k >= 3 && std::abs(m.order_slope_t) > 3.0 && oa.r2 > 0.8) {
+  if (line.ok && std::abs(m.order_slope_t) > 3.0 && oa.r2 > 0.8) {
     m.form = "trial_to_trial";
     m.proposal = fmt::format(
         "the held-out trials' mean residual trends with recording order ({:+.2f} noise SDs per trial, t = {:.1f}): "

@@ -146,18 +146,11 @@ ContactHeightCheck contact_height_check(const std::vector<TrialState>& trials) {
     y.push_back(r.video_offset_s);
   }
   h.n = static_cast<int>(x.size());
-  if (h.n < 3) return h;
-  const double n = h.n;
-  double mx = 0.0, my = 0.0;
-  for (std::size_t k = 0; k < x.size(); ++k) mx += x[k] / n, my += y[k] / n;
-  double sxx = 0.0, sxy = 0.0;
-  for (std::size_t k = 0; k < x.size(); ++k) sxx += (x[k] - mx) * (x[k] - mx), sxy += (x[k] - mx) * (y[k] - my);
-  if (!(sxx > 0.0)) return h;
-  h.dh_m = sxy / sxx;
-  h.offset_s = my - h.dh_m * mx;
-  double rss = 0.0;
-  for (std::size_t k = 0; k < x.size(); ++k) rss += std::pow(y[k] - h.offset_s - h.dh_m * x[k], 2);
-  h.se_m = std::sqrt(rss / (n - 2.0) / sxx);
+  const detail::LineFit line = detail::fit_line(x, y);
+  if (!line.ok) return h;
+  h.dh_m = line.slope;
+  h.offset_s = line.intercept;
+  h.se_m = line.slope_se;
   h.ok = true;
   return h;
 }
