@@ -447,6 +447,8 @@ DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& optio
       append(result, md);
       const bool corrected = correction.drift || correction.gain != 1.0;
       if ((!md.effects.empty() || corrected) && md.fit_after) result.mat_fit = md.fit_after;
+      // A named force-channel filter: the mat fitted through it is the mat.
+      if (lowpass && lowpass->named && lowpass->fit) result.mat_fit = lowpass->fit;
     }
     if (order) append(result, *order);
   }

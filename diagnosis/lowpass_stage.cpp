@@ -222,13 +222,25 @@ std::vector<ProfilePoint> run_profile(const std::vector<fitting::TrialData>& acc
   return pts;
 }
 
-// The model with the named filter: each trial predicted at the profile's
-// best point (its clock shift fitted), as the sync stage reads contacts.
+// The model with the named filter, fitted as every model is (its intervals,
+// error budget and predictions) from the profile's best point: the session's
+// mat fit from here on, and the contacts the sync stage re-judges. When that
+// fit fails, each trial predicted at the profile's best point (its clock
+// shift fitted) stands in, without intervals.
 fitting::FitResult filtered_fit(const std::vector<fitting::TrialData>& acc, const fitting::FitOptions& o,
                                 const fitting::MatParams& params) {
+  fitting::FitOptions warm = o;
+  warm.initial = params;
+  warm.starts = 1;
+  warm.protect_initial = false;
+  try {
+    return fitting::fit(acc, warm);
+  } catch (const std::exception&) {
+  }
   fitting::FitResult f;
   f.model = o.model;
   f.params = params;
+  f.force_lowpass_hz = o.force_lowpass_hz;
   for (const auto& t : acc) {
     f.trials.push_back(fitting::predict(t, params, o));
     f.trials.back().train = true;

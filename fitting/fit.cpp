@@ -380,6 +380,7 @@ FitResult fit(const std::vector<TrialData>& trials, const FitOptions& options) {
   const Optimum& best = fc.search.best;
   res.params = fc.params;
   res.optimizer = fc.used;
+  res.force_lowpass_hz = options.force_lowpass_hz;
   res.cost = best.cost;
   res.n_residuals = static_cast<int>(best.residuals.size());
 

@@ -333,6 +333,9 @@ struct FitResult {
   long evaluations = 0;               // simulations run by the optimiser
   double seconds = 0.0;
   std::string optimizer;
+  // The force-channel low-pass the model's plate force passed through
+  // (FitOptions::force_lowpass_hz; 0: none): the parameters are the mat's.
+  double force_lowpass_hz = 0.0;
   std::string report() const;         // human-readable summary
 };
 

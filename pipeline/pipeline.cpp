@@ -257,7 +257,13 @@ void close_loop(SessionState& state) {
   if (state.final_model6())
     apply_model6_offsets(state);
   else if (const fitting::FitResult* final_fit = state.final_fit())
-    for (auto& t : state.trials) apply_fitted_offset(t.result, *final_fit);
+    for (auto& t : state.trials) {
+      apply_fitted_offset(t.result, *final_fit);
+      if (final_fit->force_lowpass_hz > 0.0 && t.result.force_lowpass_source.empty()) {
+        t.result.force_lowpass_hz = final_fit->force_lowpass_hz;
+        t.result.force_lowpass_source = "named";
+      }
+    }
   check_contact_height(state);
   map_final_residuals(state);
 }

@@ -122,6 +122,10 @@ TrialOutcome analyse_trial(const Manifest& manifest, const TrialRecording& trial
     return outcome;
   }
   outcome.result = trial::analyse(*outcome.force, trajectories, options);
+  if (manifest.forceplate.lowpass_hz > 0.0) {
+    outcome.result.force_lowpass_hz = manifest.forceplate.lowpass_hz;
+    outcome.result.force_lowpass_source = "declared";
+  }
   return outcome;
 }
 

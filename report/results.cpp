@@ -197,6 +197,8 @@ std::string trial_json(const trial::TrialResult& r, const TrialSource* source) {
               {"fall_accel_m_s2", number_or_null(r.fall_accel_m_s2)},
               {"fall_accel_se_m_s2", number_or_null(r.fall_accel_se_m_s2)},
               {"impulse_ratio", number_or_null(r.impulse_ratio)}};
+  doc["force_lowpass_hz"] = number_or_null(r.force_lowpass_hz);
+  doc["force_lowpass_source"] = r.force_lowpass_source.empty() ? json(nullptr) : json(r.force_lowpass_source);
   if (!r.force_correction.empty()) {
     doc["force_correction"] = r.force_correction;
     doc["peak_force_uncorrected_n"] = number_or_null(r.peak_force_uncorrected_n);
@@ -353,6 +355,7 @@ std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg, con
               {"alternatives", alternatives},
               {"warnings", warnings},
               {"optimizer", fit.optimizer},
+              {"force_lowpass_hz", fit.force_lowpass_hz > 0.0 ? json(fit.force_lowpass_hz) : json(nullptr)},
               {"evaluations", fit.evaluations},
               {"seconds", fit.seconds}};
   return doc.dump(2) + "\n";

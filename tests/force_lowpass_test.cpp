@@ -124,6 +124,31 @@ TEST(ForceLowpass, UndeclaredFilterIsNamedAndTheOffsetIsTheClocks) {
   EXPECT_NEAR(estimate(*t, "video_offset_ms"), 3.0, 0.3) << l.report;
 }
 
+// What the loop names, the results use: the whole pipeline on the same
+// session keeps the mat fitted through the named filter as its final model
+// (fit.json states the corner), and each trial's clock offset is read from
+// that model's contacts: the clock's 3 ms, not 3 ms less the filter's lag.
+TEST(ForceLowpass, NamedFilterIsInTheFinalFitAndEveryTrialsOffset) {
+  const pipeline::SessionState state = pipeline::build(lab_session(11, [](synth::SynthOptions& o) {
+    o.faults.amplifier_lowpass_hz = 250.0;
+    o.effects.time_offset_ms = 3.0;
+  }));
+  const fitting::FitResult* final_fit = state.final_fit();
+  ASSERT_NE(final_fit, nullptr);
+  EXPECT_NEAR(final_fit->force_lowpass_hz, 250.0, 40.0);
+  EXPECT_FALSE(final_fit->estimates.empty());
+  int accepted = 0;
+  for (const auto& t : state.trials) {
+    if (!t.result.accepted) continue;
+    ++accepted;
+    EXPECT_EQ(t.result.force_lowpass_source, "named") << t.result.id;
+    EXPECT_NEAR(t.result.force_lowpass_hz, final_fit->force_lowpass_hz, 1e-9) << t.result.id;
+    // 0.3 ms: the must-show's tolerance; the lag left in would be 0.9 ms.
+    EXPECT_NEAR(t.result.video_offset_s, 3e-3, 0.3e-3) << t.result.id;
+  }
+  EXPECT_GE(accepted, 4);
+}
+
 // A 350 Hz filter (0.64 ms): the mat's parameters absorb its shape to
 // within the noise, so the lag is reported as ambiguous between the clock
 // and the force channel, with a range of clock offsets that holds the true

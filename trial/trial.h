@@ -331,6 +331,13 @@ struct TrialResult {
   // Empty / NaN when the loop corrected nothing.
   std::string force_correction;
   double peak_force_uncorrected_n = std::numeric_limits<double>::quiet_NaN();
+  // The force channel's low-pass (2nd-order Butterworth corner, Hz; NaN:
+  // none) and where it came from: "declared" in the manifest (its group
+  // delay taken out of the force clock) or "named" by closing the loop (the
+  // final mat model's plate force passes it, so the clock offset is the
+  // clock's alone).
+  double force_lowpass_hz = std::numeric_limits<double>::quiet_NaN();
+  std::string force_lowpass_source;
   Series series;
 
   std::string report() const;
