@@ -11,6 +11,7 @@
 #include "core/error.h"
 #include "core/parallel.h"
 #include "diagnosis/model_choice.h"
+#include "pipeline/contact_height.h"
 #include "pipeline/outputs.h"
 #include "pipeline/wiring.h"
 
@@ -328,7 +329,10 @@ void apply_plate_correction(SessionState& state, const diagnosis::PlateCorrectio
   }
 }
 
-SessionState build(Session session, const BuildOptions& options) {
+namespace {
+
+// The stages up to options.upto, in order.
+SessionState build_stages(Session session, const BuildOptions& options) {
   SessionState state;
   state.session = std::move(session);
   const auto say = options.say;
@@ -344,6 +348,11 @@ SessionState build(Session session, const BuildOptions& options) {
     if (say) say("closing the loop");
     close_loop(state);
   }
+  return state;
+}
+
+// Each rejected trial's reason, and where each trial's inputs came from.
+void add_trial_notes(SessionState& state) {
   if (static_cast<int>(state.reached) >= static_cast<int>(Stage::Trials)) {
     std::vector<std::pair<std::string, report::TrialSource>> sources;
     for (std::size_t i = 0; i < state.trials.size(); ++i) {
@@ -353,6 +362,29 @@ SessionState build(Session session, const BuildOptions& options) {
     }
     for (auto& note : report::trial_source_notes(sources)) state.notes.push_back(std::move(note));
   }
+}
+
+}  // namespace
+
+SessionState build(Session session, const BuildOptions& options) {
+  SessionState state = build_stages(std::move(session), options);
+  // A declared mat top that the surface markers and the clock offsets'
+  // 1 / speed trend both contradict (contact_height.h): every trial measured
+  // again from the surface markers' height, once, the correction recorded
+  // as the loop's effect with the errors before and after it.
+  if (const auto c = confirmed_mat_top(state)) {
+    if (options.say) options.say("measuring the trials again from the mat top the surface markers show");
+    Session corrected = state.session;
+    corrected.manifest.forceplate.mat_top_z_m = c->surface_m;
+    SessionState again = build_stages(std::move(corrected), options);
+    if (again.loop) {
+      const diagnosis::Effect e = mat_top_effect(*c, state, again);
+      again.notes.push_back("closing the loop: " + e.evidence);
+      again.loop->effects.insert(again.loop->effects.begin(), e);
+      state = std::move(again);
+    }
+  }
+  add_trial_notes(state);
   return state;
 }
 
