@@ -302,7 +302,10 @@ struct ChannelShare {
 struct Alternative {
   MatParams params;
   double cost = 0.0;
-  double delta_chi2 = 0.0;   // 2 (cost - best) / residual variance
+  // The likelihood-ratio statistic against the best optimum under the error
+  // budget's noise (each channel AR(1), the inputs' priors): the value the
+  // 3.84 threshold was applied to.
+  double delta_chi2 = 0.0;
 };
 
 struct SensitivityEntry {

@@ -230,8 +230,6 @@ void profile_intervals(const Profiler& pf, const ErrorBudget& budget, FitResult*
 void basin_intervals(const Profiler& pf, const Search& s, const ErrorBudget& budget, FitResult* res) {
   const ParamSpace& space = pf.space;
   const int np = space.size();
-  const Eigen::Index m = s.best.residuals.size();
-  const double s2 = m > np ? 2.0 * s.best.cost / static_cast<double>(m - np) : 1.0;
   std::vector<Optimum> sorted = s.others;
   std::sort(sorted.begin(), sorted.end(), [](const Optimum& a, const Optimum& b) { return a.cost < b.cost; });
   std::vector<Eigen::VectorXd> kept = {s.best.u};
@@ -273,7 +271,7 @@ void basin_intervals(const Profiler& pf, const Search& s, const ErrorBudget& bud
     Alternative a;
     a.params = amp;
     a.cost = other.cost;
-    a.delta_chi2 = 2.0 * (other.cost - s.best.cost) / s2;
+    a.delta_chi2 = w;
     res->alternatives.push_back(a);
     std::vector<std::string> names;
     for (int j : reached) {

@@ -101,6 +101,9 @@ TEST(Identify, ExchangeableLayersAreNotIdentifiableAndTheirIntervalsSpanBoth) {
   const WorldFit w = fit_linear_world(7012);
   const MatParams& truth = w.session.truth.params;
   ASSERT_EQ(w.fit.alternatives.size(), 1u) << w.fit.report();
+  // fit.json's statistic is the one the basin passed: at most chi-square(1)'s 3.84.
+  EXPECT_GE(w.fit.alternatives[0].delta_chi2, 0.0);
+  EXPECT_LE(w.fit.alternatives[0].delta_chi2, 3.84);
   for (const std::string name : {"k2_n_m", "k3_n_m", "r2_n_s_m", "r3_n_s_m"}) {
     const auto& e = estimate(w.fit, name);
     EXPECT_FALSE(e.identifiable) << name;
