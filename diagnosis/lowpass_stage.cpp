@@ -233,6 +233,7 @@ fitting::FitResult filtered_fit(const std::vector<fitting::TrialData>& acc, cons
   warm.initial = params;
   warm.starts = 1;
   warm.protect_initial = false;
+  warm.search_identifiability = true;
   try {
     return fitting::fit(acc, warm);
   } catch (const std::exception&) {

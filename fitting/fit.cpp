@@ -71,8 +71,8 @@ void check_options(const FitOptions& o) {
 // candidates, a warm start) also looks for Model 4's conjugate basin and
 // the intervals beyond the linearisation (fitting/detail/identify.h).
 bool searches_identifiability(const FitOptions& o) {
-  return o.optimizer == Optimizer::Ceres && o.every_ordering && !o.protect_initial &&
-         !(o.initial.k1_n_m > 0.0 && o.starts == 1);
+  if (o.optimizer != Optimizer::Ceres || o.protect_initial) return false;
+  return o.search_identifiability || (o.every_ordering && !(o.initial.k1_n_m > 0.0 && o.starts == 1));
 }
 
 struct FitCore {

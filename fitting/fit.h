@@ -203,6 +203,11 @@ struct FitOptions {
   // the best overall up to `starts`); false: from `initial` and the best
   // `starts` - 1 screened starts only (a refit near a known optimum).
   bool every_ordering = true;
+  // The identifiability search (the conjugate basin, basin-spanning and
+  // profile-likelihood intervals) runs for a fit from scratch; a single
+  // warm start near a known optimum (the loop's refits) skips it unless this
+  // is set: a refit whose intervals a lab reads (the session's final model).
+  bool search_identifiability = false;
 
   // Bounds (log space). Stiffness: absolute limits, narrowed by physics
   // around the effective stiffness k_eff = F_peak / travel_max of the

@@ -119,6 +119,28 @@ TEST(Identify, ExchangeableLayersAreNotIdentifiableAndTheirIntervalsSpanBoth) {
   EXPECT_GT(estimate(w.fit, "k2_n_m").ci_high / estimate(w.fit, "k2_n_m").ci_low, 1.5);
 }
 
+// A warm single start near the optimum (the loop's refits) skips the
+// search; search_identifiability runs it for a refit a lab reads: the same
+// conjugate basin found, the same parameters declared not identifiable.
+TEST(Identify, AWarmRefitSearchesWhenAsked) {
+  const WorldFit w = fit_linear_world(7012);
+  fitting::FitOptions fo = w.state.baseline_fit_options;
+  fo.model = fitting::ModelKind::Model4;
+  fo.train_ids = {"trial3"};
+  fo.sensitivity = false;
+  fo.initial = w.fit.params;
+  fo.starts = 1;
+  const fitting::FitResult quick = fitting::fit(w.state.fit_data, fo);
+  EXPECT_TRUE(quick.alternatives.empty());
+  fo.search_identifiability = true;
+  const fitting::FitResult searched = fitting::fit(w.state.fit_data, fo);
+  ASSERT_EQ(searched.alternatives.size(), 1u) << searched.report();
+  for (const std::string name : {"k2_n_m", "k3_n_m", "r2_n_s_m", "r3_n_s_m"}) {
+    EXPECT_FALSE(estimate(searched, name).identifiable) << name;
+    EXPECT_EQ(estimate(searched, name).interval, "basins") << name;
+  }
+}
+
 // Seed 7015 (g016): the multi-start ended in the conjugate basin (k2 0.41,
 // k3 2.4 times the truth) at a cost the data reject; the search from its
 // conjugate reaches the truth's basin, which leads by a likelihood ratio
