@@ -68,22 +68,21 @@ std::optional<MatTopCorrection> confirmed_mat_top(const SessionState& state) {
 }
 
 diagnosis::Effect mat_top_effect(const MatTopCorrection& c, const SessionState& before, const SessionState& after) {
-  diagnosis::Effect e;
-  e.stage = "sync";
-  e.name = "contact_height";
-  e.evidence = fmt::format(
+  const std::string evidence = fmt::format(
       "the declared mat top ([forceplate] mat_top_z_m = {:.4f} m) is {:.1f} mm from where the surface markers rest "
       "({:.4f} m), and the trials' clock offsets change with 1 / impact speed as a contact height {:.1f} +- {:.1f} mm "
       "off makes them: both witnesses agree, so every trial was measured again from the surface markers' height "
       "(the session folder unchanged)",
       c.declared_m, 1e3 * (c.surface_m - c.declared_m), c.surface_m, 1e3 * c.trend.dh_m, 1e3 * c.trend.se_m);
-  e.error_before = contact_errors(before);
-  e.error_after = contact_errors(after);
-  e.estimate = {{"mat_top_declared_m", c.declared_m},
-                {"mat_top_used_m", c.surface_m},
-                {"contact_height_trend_mm", 1e3 * c.trend.dh_m},
-                {"contact_height_trend_se_mm", 1e3 * c.trend.se_m}};
-  return e;
+  return {.stage = "sync",
+          .name = "contact_height",
+          .evidence = evidence,
+          .error_before = contact_errors(before),
+          .error_after = contact_errors(after),
+          .estimate = {{"mat_top_declared_m", c.declared_m},
+                       {"mat_top_used_m", c.surface_m},
+                       {"contact_height_trend_mm", 1e3 * c.trend.dh_m},
+                       {"contact_height_trend_se_mm", 1e3 * c.trend.se_m}}};
 }
 
 }  // namespace dropfit::pipeline
