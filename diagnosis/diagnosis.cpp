@@ -451,6 +451,9 @@ DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& optio
       if (lowpass && lowpass->named && lowpass->fit) result.mat_fit = lowpass->fit;
     }
     if (order) append(result, *order);
+    if (order && order->changed)
+      for (std::size_t i = 0; i < order->ids.size(); ++i)
+        result.trial_stiffness_scale.emplace_back(order->ids[i], order->trend_scale[i]);
   }
   flush();
   result.plate_correction = correction;

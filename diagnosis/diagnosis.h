@@ -206,6 +206,12 @@ struct DiagnosisResult {
   // The plate correction the force-plate stage kept (identity when none);
   // the pipeline applies it to the trial results and every fit.
   PlateCorrection plate_correction;
+  // When the mat changes between trials (mat_change_between_trials named):
+  // each accepted trial's stiffness scale as the recording-order trend
+  // fitted without it predicts (OrderDiagnosis::trend_scale), by trial id.
+  // The pipeline predicts each trial with the final model's stiffnesses
+  // times its scale over the training trial's.
+  std::vector<std::pair<std::string, double>> trial_stiffness_scale;
   // The held-out residual's form (model_choice.h, map_residual) of the
   // session's final models, as the pipeline maps them once the loop and
   // Model 6 are done: model label ("closed_loop", "model4", "model6") and map.
@@ -538,10 +544,17 @@ struct OrderDiagnosis {
   std::vector<std::string> notes;
   std::vector<std::string> ids;           // accepted trials, recording order
   std::vector<double> stiffness_scale;    // per id; NaN when it could not be found
+  // Per id: the stiffness scale the trend (recording order and speed) fitted
+  // without that trial predicts for it; NaN where it cannot be predicted.
+  std::vector<double> trend_scale;
   double rate_per_trial = std::numeric_limits<double>::quiet_NaN();  // relative stiffness change per trial
   double rate_se = std::numeric_limits<double>::quiet_NaN();
   bool changed = false;                   // the mat changes between trials
 };
+
+// Every stiffness of `params` (the springs, the cubic term, a Maxwell arm's)
+// times `scale`: the same mat made uniformly softer or stiffer.
+fitting::MatParams scaled_stiffness(fitting::MatParams params, double scale);
 
 // trials in recording order (rejected ones skipped); fit: one model of the
 // mat fitted to them (its model and params are used).

@@ -20,8 +20,7 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 // The model's peak plate force at the trial's impact with every stiffness
 // of `params` times `scale`; NaN when the model cannot be simulated.
 double scaled_peak_n(const fitting::FitResult& fit, const fitting::TrialData& d, double scale) {
-  fitting::MatParams p = fit.params;
-  p.k1_n_m *= scale, p.k2_n_m *= scale, p.k3_n_m *= scale, p.k1_cubic_n_m3 *= scale, p.maxwell_k_n_m *= scale;
+  const fitting::MatParams p = scaled_stiffness(fit.params, scale);
   fitting::Impact imp;
   imp.mass_kg = d.impactor_mass_kg;
   imp.velocity_m_s = d.impact_velocity_m_s;
@@ -74,6 +73,11 @@ LeastSquares ols(const Eigen::MatrixXd& x, const Eigen::VectorXd& y, double sd_f
 
 }  // namespace
 
+fitting::MatParams scaled_stiffness(fitting::MatParams p, double scale) {
+  p.k1_n_m *= scale, p.k2_n_m *= scale, p.k3_n_m *= scale, p.k1_cubic_n_m3 *= scale, p.maxwell_k_n_m *= scale;
+  return p;
+}
+
 // See diagnosis.h.
 OrderDiagnosis diagnose_order(const std::vector<fitting::TrialData>& trials, const fitting::FitResult& fit,
                               const OrderStageOptions& o) {
@@ -115,6 +119,22 @@ OrderDiagnosis diagnose_order(const std::vector<fitting::TrialData>& trials, con
   x_both.col(2) = k.array() - k.mean();
   const LeastSquares without = ols(x_speed, y, o.scale_sd_floor);
   const LeastSquares with = ols(x_both, y, o.scale_sd_floor);
+  // Each trial's scale as the trend fitted without it predicts (its own
+  // peak not used); the in-sample trend when too few trials are left.
+  out.trend_scale.assign(out.ids.size(), std::numeric_limits<double>::quiet_NaN());
+  for (Eigen::Index i = 0, row = 0; i < static_cast<Eigen::Index>(out.ids.size()); ++i) {
+    if (!std::isfinite(out.stiffness_scale[static_cast<std::size_t>(i)])) continue;
+    Eigen::VectorXd beta = with.beta;
+    if (n - 1 > x_both.cols()) {
+      Eigen::MatrixXd xo(n - 1, x_both.cols());
+      Eigen::VectorXd yo(n - 1);
+      for (Eigen::Index r = 0, m = 0; r < n; ++r)
+        if (r != row) xo.row(m) = x_both.row(r), yo(m) = y(r), ++m;
+      beta = xo.colPivHouseholderQr().solve(yo);
+    }
+    out.trend_scale[static_cast<std::size_t>(i)] = std::exp(x_both.row(row).dot(beta));
+    ++row;
+  }
   const double rate = std::expm1(with.beta(2));  // relative stiffness change per trial
   const double rate_se = with.se(2);
   out.rate_per_trial = rate;

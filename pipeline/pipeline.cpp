@@ -250,6 +250,9 @@ void close_loop(SessionState& state) {
   // corrects every trial's force and every fit (the plate's own reading
   // kept beside it), so no result stands on data the loop showed wrong.
   if (state.loop) apply_plate_correction(state, state.loop->plate_correction);
+  // A mat that changes between trials: each trial predicted with its own
+  // stiffness (before Model 6 is judged against the final lumped model).
+  predict_changing_mat(state);
   // A final lumped model short of the noise: Model 6 may replace it.
   consider_model6(state);
   // Each trial's clock offset from the contact instant the final mat model
@@ -267,6 +270,47 @@ void close_loop(SessionState& state) {
     }
   check_contact_height(state);
   map_final_residuals(state);
+}
+
+void predict_changing_mat(SessionState& state) {
+  if (!state.loop || state.loop->trial_stiffness_scale.empty()) return;
+  const fitting::FitResult* final_fit = state.final_fit();
+  if (!final_fit || final_fit->train_ids.size() != 1 || final_fit->model == fitting::ModelKind::Model5) return;
+  const auto& scales = state.loop->trial_stiffness_scale;
+  auto scale_of = [&](const std::string& id) {
+    for (const auto& [k, s] : scales)
+      if (k == id) return s;
+    return std::numeric_limits<double>::quiet_NaN();
+  };
+  const double train_scale = scale_of(final_fit->train_ids.front());
+  if (!std::isfinite(train_scale)) return;
+  // The mat effects are not judged on a changing mat, so the final lumped
+  // model is the baseline's (on the plate-corrected force when corrected).
+  fitting::FitOptions options = state.baseline_fit_options;
+  options.model = final_fit->model;
+  options.force_lowpass_hz = final_fit->force_lowpass_hz;
+  fitting::FitResult changed = *final_fit;
+  std::string used;
+  for (fitting::TrialReport& rep : changed.trials) {
+    const double s = scale_of(rep.id) / train_scale;
+    if (rep.train || !std::isfinite(s)) continue;
+    for (const fitting::TrialData& d : state.fit_data) {
+      if (d.id != rep.id) continue;
+      try {
+        rep = fitting::predict(d, diagnosis::scaled_stiffness(final_fit->params, s), options);
+        used += fmt::format("{}{} x{:.3f}", used.empty() ? "" : ", ", rep.id, s);
+      } catch (const std::exception& e) {
+        state.notes.push_back(fmt::format("trial {}: not predicted with its stiffness scale: {}", rep.id, e.what()));
+      }
+    }
+  }
+  if (used.empty()) return;
+  changed.warnings.push_back(fmt::format(
+      "the mat changes between trials: the parameters are the training trial's ({}) mat; each other trial is "
+      "predicted with every stiffness scaled as the recording-order trend fitted without it gives ({}); those "
+      "predictions carry no interval",
+      final_fit->train_ids.front(), used));
+  state.loop->mat_fit = std::move(changed);
 }
 
 void check_contact_height(SessionState& state) {

@@ -99,6 +99,12 @@ void analyse_trials(SessionState& state, double max_tilt_deg = 0.0,
 void fit_models(SessionState& state, const std::vector<fitting::ModelKind>& models, int threads = 1,
                 const std::function<void(const std::string&)>& say = {});
 void close_loop(SessionState& state);
+// When the loop found the mat changing between trials: the final lumped
+// model becomes the loop's, each held-out trial predicted with the final
+// model's stiffnesses times its own scale over the training trial's (the
+// recording-order trend fitted without it, DiagnosisResult::
+// trial_stiffness_scale); its contact then gives the trial's clock offset.
+void predict_changing_mat(SessionState& state);
 // With the final model's clock offsets in place: when they change with
 // 1 / impact speed (a face or mat-top height error, not a clock; the
 // screen's check, diagnosis::contact_height_reason, with a 5 mm floor) the
