@@ -55,7 +55,9 @@ void add_run(CLI::App& app, CommandContext& ctx) {
     Progress progress;
     std::vector<std::string> out_dirs(n), errors(n);
     std::vector<pipeline::RunSummary> summaries(n);
-    std::vector<bool> ok(n, false);
+    // One byte per session: the workers set their own (a vector<bool> packs
+    // several sessions' flags into one word, a data race between workers).
+    std::vector<char> ok(n, 0);
     // Each session its own folder, stable across re-runs, even when two
     // session folders share a name (a/demo and b/demo go to OUT/a__demo and
     // OUT/b__demo).
@@ -93,7 +95,7 @@ void add_run(CLI::App& app, CommandContext& ctx) {
             } else if (!s.final_model) {
               errors[i] = fmt::format("no mat model could be fitted (see the notes and {}/report.html)", out_dirs[i]);
             } else {
-              ok[i] = true;
+              ok[i] = 1;
             }
           } catch (const std::exception& e) {
             errors[i] = e.what();
