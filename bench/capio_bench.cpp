@@ -1,6 +1,7 @@
 // Reading and writing a session of realistic size: 2 cameras, 6 points,
 // 40 calibration markers, 3 trials of 1500 video frames and 5000 force
-// samples (eight-channel). Run: build/bench/capio_bench
+// samples (eight-channel); and committing the output set of a five-trial
+// `dropfit run` (report/output.h). Run: build/bench/capio_bench
 #include <benchmark/benchmark.h>
 #include <fmt/format.h>
 #include <unistd.h>
@@ -9,6 +10,7 @@
 #include <filesystem>
 
 #include "capture/io.h"
+#include "report/output.h"
 
 namespace {
 
@@ -72,5 +74,32 @@ void BM_ReadSession(benchmark::State& state) {
   fs::remove_all(dir);
 }
 BENCHMARK(BM_ReadSession)->Unit(benchmark::kMillisecond);
+
+// The files of a five-trial `dropfit run` (as many and about as large as
+// the demo session's: per trial seven files of 10-200 kB, five fits with
+// five series each, the session's tables, report and JSON), committed into
+// a folder that holds the previous run's: staged, every file and folder
+// fsynced, swapped in, the old results removed. Wall time: the fsyncs wait
+// on the disk, not the CPU.
+void BM_CommitRunOutputs(benchmark::State& state) {
+  report::OutputSet out;
+  auto text = [](std::size_t bytes) { return std::string(bytes, '7'); };
+  for (int t = 1; t <= 5; ++t) {
+    const std::string dir = fmt::format("trials/trial{}/", t);
+    for (const char* name : {"trial.json", "xyzres.csv", "grf.mot", "series.csv", "residuals.csv", "xyzpts.csv",
+                             "markers.trc"})
+      out.add(dir + name, text(60000));
+    out.add(fmt::format("series/trial{}.csv", t), text(150000));
+    for (int m = 1; m <= 5; ++m) out.add(fmt::format("fits/model{}/series/trial{}.csv", m, t), text(150000));
+  }
+  for (int m = 1; m <= 5; ++m) out.add(fmt::format("fits/model{}/fit.json", m), text(40000));
+  for (const char* name : {"report.html", "summary.csv", "fit.json", "diagnosis.json", "dlt_coefficients.csv"})
+    out.add(name, text(100000));
+  const fs::path dir = bench_dir() / "out";
+  out.commit(dir.string());
+  for (auto _ : state) out.commit(dir.string());
+  fs::remove_all(bench_dir());
+}
+BENCHMARK(BM_CommitRunOutputs)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 }  // namespace

@@ -7,6 +7,9 @@
 
 #include <filesystem>
 #include <string>
+#include <string_view>
+#include <utility>
+#include <vector>
 
 #include "core/atomic_file.h"
 #include "core/error.h"
@@ -31,6 +34,32 @@ TEST(AtomicFile, WritesReplacesAndLeavesNoTemporary) {
   fs::create_directories(dir / "folder");
   EXPECT_THROW(write_file_atomic((dir / "folder").string(), "x"), Error);
   EXPECT_THROW(write_file_atomic((dir / "a" / "b.txt" / "c").string(), "x"), Error);  // a file in the way
+}
+
+TEST(AtomicFile, ManyFilesSyncedInBatchesAreWrittenWholeOrNotAtAll) {
+  TempDir dir;
+  // More files than one batch (64), each with its own content.
+  std::vector<std::string> paths, contents;
+  for (int i = 0; i < 70; ++i) {
+    paths.push_back((dir / fmt::format("f{}.txt", i)).string());
+    contents.push_back(fmt::format("file {}\n", i) + std::string(static_cast<std::size_t>(i) * 1000, 'x'));
+  }
+  std::vector<std::pair<std::string, std::string_view>> files;
+  for (int i = 0; i < 70; ++i) files.emplace_back(paths[i], contents[i]);
+  write_files_synced(files);
+  for (int i = 0; i < 70; ++i) EXPECT_EQ(read_text(paths[i]), contents[i]) << paths[i];
+  // A file that cannot be created (its folder is missing): the error names
+  // it and its batch leaves no file behind.
+  TempDir other;
+  const std::string good = (other / "good.txt").string(), bad = (other / "missing" / "bad.txt").string();
+  try {
+    write_files_synced({{good, "g"}, {bad, "b"}});
+    ADD_FAILURE() << "no error for a file in a missing folder";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find(bad), std::string::npos) << e.what();
+  }
+  EXPECT_FALSE(fs::exists(good));
+  EXPECT_FALSE(fs::exists(bad));
 }
 
 TEST(OutputSetCommit, ReplacesAnEarlierCommitWholeAndRefusesForeignFolders) {
