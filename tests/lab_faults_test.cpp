@@ -113,6 +113,12 @@ TEST(LabFaults, FrameLostOrRepeatedInTheFallRejectsThatTrial) {
   const int contact = s.manifest.video.trigger_frame;
   repeat_frame(s.trials[1].tracks, contact - 9);
   lose_frame(s.trials[3].tracks, contact - 15);
+  // Trial 5: two frames in a row misdigitised 6 px low in both cameras, then
+  // back on track: out and back, not a step.
+  MarkerTracks2D& tr = s.trials[4].tracks;
+  for (int k : {contact - 20, contact - 19})
+    for (int p = 0; p < tr.n_points(); ++p)
+      for (int c = 0; c < tr.n_cameras(); ++c) tr.uv_px(k, tr.column(p, c) + 1) += 6.0;
   const pipeline::SessionState state = trials_of(s);
   if (std::getenv("DROPFIT_SHOW")) std::cerr << verdicts(state);
   for (std::size_t i = 0; i < state.trials.size(); ++i) {

@@ -221,8 +221,9 @@ int find_crossing(const Eigen::VectorXd& h, double top, double nominal) {
 // A frame lost or repeated in the fall (a camera dropping frames, or a
 // video re-encoded at another rate): every later row is then a frame off in
 // time, so the fall steps once by a whole frame's travel against its fit.
-// A misdigitised frame steps out and back (two neighbouring differences
-// that cancel) and is the robust fit's to drop; a step stays. Judged on the
+// A misdigitised frame (or up to three in a row) steps out and back
+// (neighbouring differences that cancel) and is the robust fit's to drop; a
+// step stays. Judged on the
 // frame-to-frame differences of the fall's frames (ts in either order; across
 // gaps of up to 5 frames) against the fit's: beyond half a frame's travel and
 // 8 robust SDs of the differences, one difference is a step. Empty when none is.
@@ -248,9 +249,20 @@ std::string frame_step_reason(const std::vector<double>& ts, const std::vector<d
   const double sd = 1.4826 * a[a.size() / 2];
   for (std::size_t k = 0; k < e.size(); ++k) {
     if (!(std::abs(e[k]) > std::max(0.5 * travel[k], 8.0 * sd))) continue;
-    // Out and back: a neighbouring difference cancels this one.
-    const bool back = (k > 0 && at[k - 1] + 1 == at[k] && std::abs(e[k - 1] + e[k]) < 0.5 * std::abs(e[k])) ||
-                      (k + 1 < e.size() && at[k] + 1 == at[k + 1] && std::abs(e[k] + e[k + 1]) < 0.5 * std::abs(e[k]));
+    // Out and back: the differences up to three on either side bring the
+    // sum back (one to three misdigitised frames in a row).
+    bool back = false;
+    for (int dir : {-1, 1}) {
+      double sum = e[k];
+      std::size_t j = k;
+      for (int m = 0; m < 3 && !back; ++m) {
+        const std::size_t next = dir > 0 ? j + 1 : j - 1;
+        if ((dir < 0 && j == 0) || next >= e.size() || (dir > 0 ? at[j] + 1 != at[next] : at[next] + 1 != at[j])) break;
+        j = next;
+        sum += e[j];
+        back = std::abs(sum) < 0.5 * std::abs(e[k]);
+      }
+    }
     if (back) continue;
     const std::size_t i = at[k];
     return fmt::format(
