@@ -574,6 +574,34 @@ TimeBaseCheck force_time_base(const std::vector<PlateTrial>& trials, const std::
   return out;
 }
 
+// With the fall at g, a balance over the descent unlike the whole contact's
+// is not a gain but the force record's time base (its declared sample rate):
+// named in `remaining` (true: nothing is to be corrected). Otherwise the
+// force scale's evidence says the time base is not the cause.
+bool name_force_time_base(const std::vector<PlateTrial>& trials, const TimeBaseCheck& time_base, double gain,
+                          double se, Effect& e, ForceplateDiagnosis& out) {
+  if (time_base.n < 2) return false;
+  if (std::abs(time_base.quotient - 1.0) <= std::max(kTimeBaseTolerance, 3.0 * time_base.se)) {
+    e.evidence += fmt::format("; the balance over the descent is {:.3f} +- {:.3f} times the whole contact's, as a "
+                              "gain leaves it, so the force record's time base is not the cause",
+                              time_base.quotient, time_base.se);
+    return false;
+  }
+  const Eigen::VectorXd& ts = trials.front().t_s;
+  const double rate_hz = ts.size() > 1 ? static_cast<double>(ts.size() - 1) / (ts(ts.size() - 1) - ts(0)) : kNaN;
+  out.remaining.push_back(
+      {"forceplate", "force_time_base",
+       fmt::format("the plate's impulse is {:.1f} % {} the video's momentum (ratio {:.4f} +- {:.4f}), but its "
+                   "balance over the descent (to the video's deepest point) is {:.3f} +- {:.3f} times its balance "
+                   "over the whole contact ({} trials), where a plate gain or a wrong mass scales both alike: the "
+                   "force record's time base is off, reading every impulse x f / f0 and ending the descent at the "
+                   "wrong sample. The declared [forceplate] sample_rate_hz = {:.0f} Hz would be {:.0f} Hz for the "
+                   "two to agree; nothing is corrected",
+                   100.0 * std::abs(gain - 1.0), gain > 1.0 ? "above" : "below", gain, se, time_base.quotient,
+                   time_base.se, time_base.n, rate_hz, rate_hz * time_base.scale)});
+  return true;
+}
+
 // force_scale (diagnosis.h): the plate's impulse against the video's
 // momentum over trials, with the drift correction found so far.
 void diagnose_force_scale(const std::vector<PlateTrial>& trials, const ForceplateStageOptions& o,
@@ -674,28 +702,7 @@ void diagnose_force_scale(const std::vector<PlateTrial>& trials, const Forceplat
                                 "base is not the cause",
                                 fall.ratio, fall.se, fall.n);
     }
-    // With the fall at g, a balance over the descent unlike the whole
-    // contact's is not a gain: the force record's time base (its declared
-    // sample rate).
-    if (time_base.n >= 2 && std::abs(time_base.quotient - 1.0) > std::max(kTimeBaseTolerance, 3.0 * time_base.se)) {
-      const Eigen::VectorXd& ts = trials.front().t_s;
-      const double rate_hz = ts.size() > 1 ? static_cast<double>(ts.size() - 1) / (ts(ts.size() - 1) - ts(0)) : kNaN;
-      out.remaining.push_back(
-          {"forceplate", "force_time_base",
-           fmt::format("the plate's impulse is {:.1f} % {} the video's momentum (ratio {:.4f} +- {:.4f}), but its "
-                       "balance over the descent (to the video's deepest point) is {:.3f} +- {:.3f} times its balance "
-                       "over the whole contact ({} trials), where a plate gain or a wrong mass scales both alike: the "
-                       "force record's time base is off, reading every impulse x f / f0 and ending the descent at the "
-                       "wrong sample. The declared [forceplate] sample_rate_hz = {:.0f} Hz would be {:.0f} Hz for the "
-                       "two to agree; nothing is corrected",
-                       100.0 * std::abs(gain - 1.0), gain > 1.0 ? "above" : "below", gain, se, time_base.quotient,
-                       time_base.se, time_base.n, rate_hz, rate_hz * time_base.scale)});
-      return;
-    }
-    if (time_base.n >= 2)
-      e.evidence += fmt::format("; the balance over the descent is {:.3f} +- {:.3f} times the whole contact's, as a "
-                                "gain leaves it, so the force record's time base is not the cause",
-                                time_base.quotient, time_base.se);
+    if (name_force_time_base(trials, time_base, gain, se, e, out)) return;
     out.effects.push_back(std::move(e));
     out.correction.gain = gain;
   } else if (stands_out) {
