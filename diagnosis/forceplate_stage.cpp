@@ -499,6 +499,109 @@ FallCheck mean_fall(const std::vector<PlateTrial>& trials, double gravity_m_s2) 
   return f;
 }
 
+// The plate impulse over the descent alone: from 10 ms before the contact to
+// the impactor's deepest point, over the momentum the mat took from it
+// there (m v_in + m g (t_max - t_c): impactor and mat top are at rest at the
+// deepest point). The video times the descent (t_max - t_c); `scale` reads
+// the force record's times x scale after the contact (1: the declared rate),
+// so its window ends at t_c + scale (t_max - t_c). NaN without a deepest point.
+double descent_balance(const PlateTrial& t, const PlateCorrection& c, double mass_kg, double g, double scale) {
+  const Eigen::Index n = t.t_s.size();
+  if (n < 10 || !std::isfinite(t.impact_velocity_m_s) || !std::isfinite(t.max_deformation_time_s) ||
+      !(t.max_deformation_time_s > t.contact_time_s))
+    return kNaN;
+  const Eigen::VectorXd f = c.apply(t.t_s, t.fz_n, t.contact_time_s);
+  const double descent_s = t.max_deformation_time_s - t.contact_time_s;
+  const double t0 = t.contact_time_s - 0.010, t1 = t.contact_time_s + scale * descent_s;
+  double impulse = 0.0;
+  for (Eigen::Index i = 0; i + 1 < n; ++i) {
+    const double a = std::max(t.t_s(i), t0), b = std::min(t.t_s(i + 1), t1);
+    if (!(b > a)) continue;
+    // The trapezoid's part within [a, b] (linear between the samples).
+    const double h = t.t_s(i + 1) - t.t_s(i);
+    const double fa = f(i) + (f(i + 1) - f(i)) * (a - t.t_s(i)) / h;
+    const double fb = f(i) + (f(i + 1) - f(i)) * (b - t.t_s(i)) / h;
+    impulse += 0.5 * (fa + fb) * (b - a);
+  }
+  const double momentum = mass_kg * (t.impact_velocity_m_s + g * descent_s);
+  return momentum > 0.0 ? impulse / momentum : kNaN;
+}
+
+// The force record's time base against the video's. A plate gain or a wrong
+// declared mass scales the balance over the descent and over the whole
+// contact alike, so their quotient is 1 whatever the gain; a force record
+// whose sample rate is declared off by f_true / f_declared = s reads every
+// impulse x s but also ends the descent's window at s times the video's
+// descent, so the quotient moves (a window ending after the deepest point
+// takes in the peak of the force). The mean quotient over trials, its SE,
+// and the s (bisection over 1/4..4) that brings it to 1.
+struct TimeBaseCheck {
+  double quotient = kNaN, se = kNaN, scale = kNaN;
+  int n = 0;
+};
+// Beyond this departure of the quotient from 1 (and 3 SE) the time base is
+// named. The mat's own momentum at the impactor's deepest point (a foam
+// column is still moving there) and the deepest instant's error move it on a
+// sound record: +0.7 to +3.1 % on the shared chain-model sessions, +2.6 to
+// +6.3 % on the shared foam columns. A rate declared 1250 Hz for 1000 Hz moves it by +38 %, a
+// factor of two by +96 %; a rate off by less than about 8 % is not told
+// from a gain.
+constexpr double kTimeBaseTolerance = 0.15;
+TimeBaseCheck force_time_base(const std::vector<PlateTrial>& trials, const std::vector<double>& whole,
+                              const PlateCorrection& c, double mass_kg, double g) {
+  TimeBaseCheck out;
+  auto mean_quotient = [&](double scale, std::vector<double>* each) {
+    std::vector<double> q;
+    for (std::size_t k = 0; k < trials.size() && k < whole.size(); ++k) {
+      const double d = descent_balance(trials[k], c, mass_kg, g, scale);
+      if (std::isfinite(d) && std::isfinite(whole[k]) && whole[k] > 0.0) q.push_back(d / whole[k]);
+    }
+    if (each) *each = q;
+    return q.empty() ? kNaN : detail::to_vector(q).mean();
+  };
+  std::vector<double> q;
+  out.quotient = mean_quotient(1.0, &q);
+  out.n = static_cast<int>(q.size());
+  if (out.n < 2) return out;
+  out.se = detail::sample_sd(detail::to_vector(q)) / std::sqrt(static_cast<double>(out.n));
+  double lo = 0.25, hi = 4.0;  // the quotient grows with the scale
+  if (!(mean_quotient(lo, nullptr) < 1.0 && mean_quotient(hi, nullptr) > 1.0)) return out;
+  for (int it = 0; it < 40; ++it) {
+    const double mid = std::sqrt(lo * hi);
+    (mean_quotient(mid, nullptr) < 1.0 ? lo : hi) = mid;
+  }
+  out.scale = std::sqrt(lo * hi);
+  return out;
+}
+
+// With the fall at g, a balance over the descent unlike the whole contact's
+// is not a gain but the force record's time base (its declared sample rate):
+// named in `remaining` (true: nothing is to be corrected). Otherwise the
+// force scale's evidence says the time base is not the cause.
+bool name_force_time_base(const std::vector<PlateTrial>& trials, const TimeBaseCheck& time_base, double gain,
+                          double se, Effect& e, ForceplateDiagnosis& out) {
+  if (time_base.n < 2) return false;
+  if (std::abs(time_base.quotient - 1.0) <= std::max(kTimeBaseTolerance, 3.0 * time_base.se)) {
+    e.evidence += fmt::format("; the balance over the descent is {:.3f} +- {:.3f} times the whole contact's, as a "
+                              "gain leaves it, so the force record's time base is not the cause",
+                              time_base.quotient, time_base.se);
+    return false;
+  }
+  const Eigen::VectorXd& ts = trials.front().t_s;
+  const double rate_hz = ts.size() > 1 ? static_cast<double>(ts.size() - 1) / (ts(ts.size() - 1) - ts(0)) : kNaN;
+  out.remaining.push_back(
+      {"forceplate", "force_time_base",
+       fmt::format("the plate's impulse is {:.1f} % {} the video's momentum (ratio {:.4f} +- {:.4f}), but its "
+                   "balance over the descent (to the video's deepest point) is {:.3f} +- {:.3f} times its balance "
+                   "over the whole contact ({} trials), where a plate gain or a wrong mass scales both alike: the "
+                   "force record's time base is off, reading every impulse x f / f0 and ending the descent at the "
+                   "wrong sample. The declared [forceplate] sample_rate_hz = {:.0f} Hz would be {:.0f} Hz for the "
+                   "two to agree; nothing is corrected",
+                   100.0 * std::abs(gain - 1.0), gain > 1.0 ? "above" : "below", gain, se, time_base.quotient,
+                   time_base.se, time_base.n, rate_hz, rate_hz * time_base.scale)});
+  return true;
+}
+
 // force_scale (diagnosis.h): the plate's impulse against the video's
 // momentum over trials, with the drift correction found so far.
 void diagnose_force_scale(const std::vector<PlateTrial>& trials, const ForceplateStageOptions& o,
@@ -545,6 +648,8 @@ void diagnose_force_scale(const std::vector<PlateTrial>& trials, const Forceplat
   const detail::Verdict v = detail::judge(before, after, 0.0, rss0, 0, rss1, 1, static_cast<double>(nr), 0.0,
                                           Criterion::AICc, d);
   const bool stands_out = std::abs(gain - 1.0) > std::max(o.min_scale_error, 3.0 * se);
+  const TimeBaseCheck time_base =
+      force_time_base(trials, out.impulse_ratios, out.correction, o.impactor_mass_kg, o.gravity_m_s2);
   if (stands_out && v.keep()) {
     Effect e;
     e.stage = "forceplate";
@@ -597,6 +702,7 @@ void diagnose_force_scale(const std::vector<PlateTrial>& trials, const Forceplat
                                 "base is not the cause",
                                 fall.ratio, fall.se, fall.n);
     }
+    if (name_force_time_base(trials, time_base, gain, se, e, out)) return;
     out.effects.push_back(std::move(e));
     out.correction.gain = gain;
   } else if (stands_out) {

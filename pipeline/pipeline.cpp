@@ -117,6 +117,12 @@ void reconstruct(SessionState& state) {
     t.trajectories = trial.has_3d_markers()
                          ? markers_as_trajectories(trial.markers_xyz_m)
                          : reconstruction::reconstruct(cameras, trial.tracks.uv_px, trial.tracks.n_points());
+    // Whether the cameras' rows are the same instants, on the impactor's
+    // markers (the ones that move): trial::apply_calibration_gates judges it.
+    if (!trial.has_3d_markers() && cameras.size() >= 2)
+      t.trajectories.camera_lags =
+          reconstruction::camera_lags(cameras, trial.tracks.uv_px, trial.tracks.n_points(),
+                                      trial_options(state.session.manifest, trial.spec.id).base_markers);
   }
   state.reached = Stage::Reconstruction;
 }

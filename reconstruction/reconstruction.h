@@ -9,6 +9,7 @@
 // markers, and this library depends on calibration); this stage applies it
 // to whole trials.
 #include <Eigen/Core>
+#include <string>
 #include <vector>
 
 #include "calibration/calibration.h"
@@ -23,11 +24,42 @@ using calibration::Triangulation;  // lab_m, residual_px (RMS reprojection error
 Triangulation triangulate(const std::vector<calibration::Camera>& cameras,
                           const std::vector<Eigen::Vector2d>& image_px, bool refine = true);
 
+// Whether the cameras' rows are the same instants. Two cameras that are not
+// synchronised (one started a few frames late, or lost a frame) see a moving
+// marker at different instants: the rays no longer meet, and the
+// reprojection residual grows with the marker's image speed (at 5 m/s and
+// 1 kHz a frame is 5 mm of travel, several pixels, against the 0.2-0.5 px a
+// digitised track reprojects to). For each camera c >= 1 paired with camera
+// 0, the given points are triangulated from those two cameras with camera
+// c's row k + lag read beside camera 0's row k, for every lag in
+// [-max_lag, max_lag]; mean_sq_px[lag + max_lag] is the mean squared
+// reprojection residual over the frames both cameras see (NaN with fewer
+// than kMinLagFrames of them). best_lag minimises it.
+struct CameraLag {
+  int camera = 0;  // index into the cameras (>= 1; paired with camera 0)
+  std::string name, reference;  // the two cameras' names
+  int max_lag = 0;
+  int best_lag = 0;
+  std::vector<double> mean_sq_px;
+  double rms_px(int lag) const;  // sqrt of mean_sq_px at that lag (NaN outside the range)
+  // The rows are not the same instants: the best lag is not 0 and the
+  // residual at lag 0 is more than kLagResidualFactor times the residual at
+  // the best lag (RMS). A sub-frame offset (cameras not genlocked) leaves
+  // lags 0 and +-1 within that factor of each other; a whole frame of a
+  // moving marker is several times the digitising noise.
+  bool desynchronised() const;
+};
+constexpr int kMinLagFrames = 20;
+constexpr double kLagResidualFactor = 2.0;
+
 struct Trajectories {
   // n_frames x (3 * n_points): x, y, z of point p in columns 3p..3p+2; NaN in gaps.
   Eigen::MatrixXd lab_m;
   // n_frames x n_points RMS reprojection residual; NaN in gaps.
   Eigen::MatrixXd residual_px;
+  // camera_lags() of the impactor's markers, set by the pipeline (empty for
+  // markers that did not come through these cameras).
+  std::vector<CameraLag> camera_lags;
   int n_frames() const { return static_cast<int>(residual_px.rows()); }
   int n_points() const { return static_cast<int>(residual_px.cols()); }
   Eigen::Vector3d point(int frame, int p) const { return lab_m.row(frame).segment<3>(3 * p).transpose(); }
@@ -39,5 +71,10 @@ struct Trajectories {
 // column count does not match or there are no cameras.
 Trajectories reconstruct(const std::vector<calibration::Camera>& cameras, const Eigen::MatrixXd& uv_px,
                          int n_points, bool refine = true);
+
+// CameraLag (above) of every camera against camera 0, over `points`. Throws
+// dropfit::Error when the column count does not match.
+std::vector<CameraLag> camera_lags(const std::vector<calibration::Camera>& cameras, const Eigen::MatrixXd& uv_px,
+                                   int n_points, const std::vector<int>& points, int max_lag = 8);
 
 }  // namespace dropfit::reconstruction

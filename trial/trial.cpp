@@ -218,6 +218,63 @@ int find_crossing(const Eigen::VectorXd& h, double top, double nominal) {
   return crossing;
 }
 
+// A frame lost or repeated in the fall (a camera dropping frames, or a
+// video re-encoded at another rate): every later row is then a frame off in
+// time, so the fall steps once by a whole frame's travel against its fit.
+// A misdigitised frame (or up to three in a row) steps out and back
+// (neighbouring differences that cancel) and is the robust fit's to drop; a
+// step stays. Judged on the
+// frame-to-frame differences of the fall's frames (ts in either order; across
+// gaps of up to 5 frames) against the fit's: beyond half a frame's travel and
+// 8 robust SDs of the differences, one difference is a step. Empty when none is.
+std::string frame_step_reason(const std::vector<double>& ts, const std::vector<double>& zs, const FreeFallFit& ff,
+                              const TrialOptions& o) {
+  const double dt = 1.0 / o.frame_rate_hz;
+  std::vector<double> e, travel;
+  std::vector<std::size_t> at;
+  for (std::size_t i = 0; i + 1 < ts.size(); ++i) {
+    // Neighbours, or frames either side of a short gap (a step hidden in
+    // the gap still shows across it).
+    const double frames = std::round(std::abs(ts[i + 1] - ts[i]) / dt);
+    if (!(frames >= 1.0 && frames <= 6.0)) continue;
+    const double predicted = ff.height_at(ts[i + 1], o.gravity_m_s2) - ff.height_at(ts[i], o.gravity_m_s2);
+    e.push_back(zs[i + 1] - zs[i] - predicted);
+    travel.push_back(std::abs(predicted) / frames);
+    at.push_back(i);
+  }
+  if (e.size() < 10) return {};
+  std::vector<double> a(e.size());
+  for (std::size_t k = 0; k < e.size(); ++k) a[k] = std::abs(e[k]);
+  std::nth_element(a.begin(), a.begin() + static_cast<std::ptrdiff_t>(a.size() / 2), a.end());
+  const double sd = 1.4826 * a[a.size() / 2];
+  for (std::size_t k = 0; k < e.size(); ++k) {
+    if (!(std::abs(e[k]) > std::max(0.5 * travel[k], 8.0 * sd))) continue;
+    // Out and back: the differences up to three on either side bring the
+    // sum back (one to three misdigitised frames in a row).
+    bool back = false;
+    for (int dir : {-1, 1}) {
+      double sum = e[k];
+      std::size_t j = k;
+      for (int m = 0; m < 3 && !back; ++m) {
+        const std::size_t next = dir > 0 ? j + 1 : j - 1;
+        if ((dir < 0 && j == 0) || next >= e.size() || (dir > 0 ? at[j] + 1 != at[next] : at[next] + 1 != at[j])) break;
+        j = next;
+        sum += e[j];
+        back = std::abs(sum) < 0.5 * std::abs(e[k]);
+      }
+    }
+    if (back) continue;
+    const std::size_t i = at[k];
+    return fmt::format(
+        "video: the falling face moves {:.1f} mm between the frames at {:+.1f} and {:+.1f} ms where its free fall "
+        "moves {:.1f} mm ({:.1f} mm a frame; differences scatter by {:.2f} mm): a frame lost or repeated, which puts "
+        "every later frame a frame off in time and the impact velocity with it",
+        1e3 * std::abs(zs[i + 1] - zs[i]), 1e3 * ts[i], 1e3 * ts[i + 1], 1e3 * std::abs(zs[i + 1] - zs[i] - e[k]),
+        1e3 * travel[k], 1e3 * sd);
+  }
+  return {};
+}
+
 // Free-fall fit before the crossing and the video contact instant, into res.
 FreeFallFit free_fall_before(const Eigen::VectorXd& h, int crossing, const VideoClock& clock, const TrialOptions& o,
                              TrialResult& res, std::vector<std::string>& reasons) {
@@ -270,6 +327,7 @@ FreeFallFit free_fall_before(const Eigen::VectorXd& h, int crossing, const Video
     res.fall_accel_m_s2 = fall.accel_m_s2;
     res.fall_accel_se_m_s2 = fall.se_m_s2;
     if (std::string r = fall_acceleration_reason(fall, o); !r.empty()) reasons.push_back(std::move(r));
+    if (std::string r = frame_step_reason(ts, zs, ff, o); !r.empty()) reasons.push_back(std::move(r));
   }
   return ff;
 }
@@ -826,6 +884,14 @@ void apply_calibration_gates(TrialResult& result, const reconstruction::Trajecto
           "fits its points to {:.2g} px, limit {:.2g} px): check the order of [video].cameras and of the tracked points",
           result.reprojection_residual_px, quality.fit_rms_px, limit));
     }
+  }
+  for (const auto& lag : markers.camera_lags) {
+    if (!lag.desynchronised()) continue;
+    reasons.push_back(fmt::format(
+        "the cameras' rows are not the same instants: the base markers reproject {:.2g} px RMS with the rows as "
+        "they stand and {:.2g} px when camera {}'s row k + {} is read beside camera {}'s row k (the cameras were not "
+        "synchronised, or one lost or repeated a frame: align the rows, e.g. with DLTdv's frame offsets)",
+        lag.rms_px(0), lag.rms_px(lag.best_lag), lag.name, lag.best_lag, lag.reference));
   }
   if (reasons.empty()) return;
   for (auto& reason : reasons) {
