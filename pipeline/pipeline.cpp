@@ -252,6 +252,8 @@ void close_loop(SessionState& state) {
       state.notes.push_back(fmt::format("closing the loop failed: {}", e.what()));
     }
   }
+  // An instrument clock the loop showed wrong: nothing measured on it stands.
+  reject_on_wrong_time_base(state);
   // What the loop found, the results use: a plate gain or drift it kept
   // corrects every trial's force and every fit (the plate's own reading
   // kept beside it), so no result stands on data the loop showed wrong.
@@ -276,6 +278,33 @@ void close_loop(SessionState& state) {
     }
   check_contact_height(state);
   map_final_residuals(state);
+}
+
+void reject_on_wrong_time_base(SessionState& state) {
+  if (!state.loop) return;
+  std::string reason;
+  for (const auto& r : state.loop->remaining)
+    if (r.name == "force_time_base" || r.name == "video_time_base")
+      reason += fmt::format("{}{} ({}): {}", reason.empty() ? "" : "; ", r.name,
+                            r.name == "force_time_base" ? "the force record's sample rate" : "the video's frame rate",
+                            r.description);
+  if (reason.empty()) return;
+  // Velocities, impulses, contact instants and every fitted parameter are
+  // read on that clock: every trial is rejected, no model is kept.
+  int rejected = 0;
+  for (std::size_t i = 0; i < state.trials.size(); ++i) {
+    trial::TrialResult& r = state.trials[i].result;
+    if (!r.accepted) continue;
+    r.accepted = false;
+    r.reject_reason = "an instrument's time base is wrong, found by closing the loop over the session: " + reason;
+    if (i < state.fit_data.size()) state.fit_data[i].accepted = false;
+    ++rejected;
+  }
+  if (rejected == 0) return;
+  state.fits.clear();
+  state.loop->mat_fit.reset();
+  state.fit_notes.clear();
+  state.fit_notes.push_back("no model kept: every trial was measured on a wrong time base (" + reason + ")");
 }
 
 void predict_changing_mat(SessionState& state) {

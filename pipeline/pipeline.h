@@ -99,6 +99,11 @@ void analyse_trials(SessionState& state, double max_tilt_deg = 0.0,
 void fit_models(SessionState& state, const std::vector<fitting::ModelKind>& models, int threads = 1,
                 const std::function<void(const std::string&)>& say = {});
 void close_loop(SessionState& state);
+// When the loop left a wrong time base in its remaining (force_time_base:
+// the force record's declared sample rate; video_time_base: the video's
+// frame rate): every accepted trial is rejected with that reason and the
+// fits are dropped, since every number was read on that clock.
+void reject_on_wrong_time_base(SessionState& state);
 // When the loop found the mat changing between trials: the final lumped
 // model becomes the loop's, each held-out trial predicted with the final
 // model's stiffnesses times its own scale over the training trial's (the

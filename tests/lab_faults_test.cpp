@@ -174,6 +174,20 @@ TEST(LabFaults, ForceRateDeclaredWrongIsNoForceScale) {
   }
 }
 
+// The whole pipeline on the 2000 Hz declaration: every trial rejected with
+// the force record's time base named, no model kept (exit non-zero in the
+// commands), instead of a fit.json on the wrong clock.
+TEST(LabFaults, ForceRateDeclaredWrongRejectsEveryTrial) {
+  Session s = lab_session(11);
+  declare_force_rate(s, 2000.0);
+  const pipeline::SessionState state = pipeline::build(s);
+  EXPECT_EQ(state.accepted(), 0) << verdicts(state);
+  for (const auto& t : state.trials)
+    EXPECT_TRUE(contains(t.result.reject_reason, "force_time_base")) << t.result.reject_reason;
+  EXPECT_TRUE(state.fits.empty());
+  EXPECT_EQ(state.final_fit(), nullptr);
+}
+
 // The clean session: the balance over the descent is the whole contact's.
 TEST(LabFaults, CleanForceRecordKeepsItsTimeBase) {
   const pipeline::SessionState state = trials_of(lab_session(11));

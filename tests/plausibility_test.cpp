@@ -129,11 +129,15 @@ TEST_F(Plausibility, FrameRateFivePercentHighRejectsByTheFreeFall) {
 // friction could do, so the trials stand; but the impulse balance reads 3 %
 // high in the direction the fall points, which a plate gain or a wrong mass
 // cannot do: the loop names the video's time base (and the rate that makes
-// the fall free), corrects nothing and leaves the session unexplained.
+// the fall free), corrects nothing and leaves the session unexplained; every
+// trial was measured on that clock, so each is rejected with the reason and
+// `process` exits non-zero.
 TEST_F(Plausibility, FrameRateFourPercentLowIsNamedAsTheVideoTimeBase) {
   edit("session.toml", "frame_rate_hz = 1000.0", "frame_rate_hz = 960.0");
   const auto d = expect_unexplained_by("video_time_base", "frame_rate_hz = 960 Hz would be (99[5-9]|100[0-5]) Hz");
   for (const auto& e : d["effects"]) EXPECT_NE(e["name"], "force_scale") << e.dump();
+  fs::remove_all(out());
+  expect_all_rejected(run("process"), "time base is wrong.*frame_rate_hz = 960 Hz would be");
 }
 
 // The base markers' height above the face declared 25 mm too high (0.055
