@@ -18,9 +18,12 @@
 // densification of a foam the training impact barely reaches is otherwise
 // free to run to its bound); the two Prony terms (g, tau each; tau_1 in
 // [0.5, 10] ms, below the plate's resolution a Prony term is a dashpot;
-// tau_2 in [10, 300] ms) and the viscosity. The densification exponent is
-// fixed (densification_exponent). Start: a generic landing-mat foam pair
-// with every stress scaled by the training trials' peak stress.
+// tau_2 in [10, 300] ms), the viscosity, and the densification exponent n
+// shared by the two foams (fitted as log(n - 1), n in [1.3, 4]; the whole
+// search runs with n held at densification_exponent and again with it
+// free, and keeps n free only when that halves the cost: see
+// free_exponent_cost_ratio). Start: a generic landing-mat foam pair with
+// every stress scaled by the training trials' peak stress.
 //
 // This fitter stands beside fitting/fit.h's (which fits Models 1-5 and the
 // loop's effects): it returns the same TrialReport per trial, so held-out
@@ -64,6 +67,12 @@ struct Model6FitOptions {
   // The second stage stops when an iteration lowers the cost by less than
   // this share (Ceres' function tolerance).
   double function_tolerance = 1e-6;
+  // The densification exponent: the whole search runs with it held at
+  // densification_exponent and again with it free; the free exponent is
+  // kept when its fit's cost is at most this share of the held fit's (one
+  // more parameter lowers a structured misfit's cost a little, and its
+  // gain must be the law's shape, not the misfit's).
+  double free_exponent_cost_ratio = 0.5;
 };
 
 struct Model6FitResult {
