@@ -530,8 +530,10 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   // steepness at the training impact's deepest strain misfits the peak
   // and misplaces the contact; but with n free the other parameters can
   // also end in a worse basin, and one more parameter lowers the cost of
-  // any misfit a little. The free exponent is kept when its path ends at
-  // free_exponent_cost_ratio of the held path's cost or below.
+  // any misfit a little. The free path runs when the held fit is short of
+  // the noise (its RMS residual above free_exponent_min_rms noise SDs), and
+  // its exponent is kept when it ends at free_exponent_cost_ratio of the
+  // held path's cost or below.
   double u0[kFree];
   std::copy(u, u + kFree, u0);
   ceres::Solver::Summary summary;
@@ -540,9 +542,12 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   std::copy(u, u + kFree, held_u);
   const std::vector<double> held_shifts = shifts;
   const ceres::Solver::Summary held_summary = summary;
-  free_exponent = true;
-  iterations += fit_staged(problem, u0, u, shifts, windows, options, true, summary);
-  if (!(summary.final_cost <= options.free_exponent_cost_ratio * held_summary.final_cost)) {
+  const double held_rms = std::sqrt(2.0 * held_summary.final_cost / std::max(1, n_res));
+  if (held_rms > options.free_exponent_min_rms) {
+    free_exponent = true;
+    iterations += fit_staged(problem, u0, u, shifts, windows, options, true, summary);
+  }
+  if (free_exponent && !(summary.final_cost <= options.free_exponent_cost_ratio * held_summary.final_cost)) {
     free_exponent = false;
     std::copy(held_u, held_u + kFree, u);
     std::copy(held_shifts.begin(), held_shifts.end(), shifts.begin());  // in place: the problem holds their addresses
