@@ -562,6 +562,7 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   res.iterations = iterations;
   const Eigen::VectorXd log_se = log_standard_errors(problem, summary.final_cost, n_res);
   for (int i = 0; i < kFree; ++i) {
+    if (i == kExponent && !free_exponent) continue;  // held: a fixed number of the law, not an estimate
     ParameterEstimate e;
     e.name = free_names()[i];
     // n is fitted as log(n - 1).

@@ -83,7 +83,8 @@ struct Model6FitOptions {
 struct Model6FitResult {
   Model6Params params;
   std::vector<std::string> train_ids;
-  // The free parameters, SEs from (J^T J)^-1 scaled by the residual
+  // The free parameters (14, and the densification exponent when the fit
+  // freed it), SEs from (J^T J)^-1 scaled by the residual
   // variance when above the noise (delta method from the logarithms).
   std::vector<ParameterEstimate> estimates;
   std::vector<TrialReport> trials;           // every trial predicted (train: its fitted dt_c)
