@@ -9,7 +9,8 @@
 //       truth.json beside it (../shared/validation-continuum/c1-foam).
 //
 // Environment: M6_ELEMENTS=n_top,n_base,max_step_s fits another column
-// than the pipeline's; M6_DUMP=1 prints each training trial's measured and
+// than the pipeline's; M6_HELD_EXPONENT=1 keeps the densification exponent
+// held (never freed); M6_DUMP=1 prints each training trial's measured and
 // fitted force and travel.
 //
 // Prints per trial the peak force's error (% of the truth), the maximum
@@ -83,6 +84,7 @@ Worst scan(const std::string& label, const Session& session, const std::vector<T
   fitting::Model6FitOptions o = pipeline::model6_options(session.manifest);
   if (const char* e = std::getenv("M6_ELEMENTS")) std::sscanf(e, "%d,%d,%lf", &o.geometry.n_top, &o.geometry.n_base,
                                                                &o.geometry.max_step_s);
+  if (const char* e = std::getenv("M6_HELD_EXPONENT"); e && *e == '1') o.free_exponent_cost_ratio = 0.0;
   std::vector<fitting::TrialData> data;
   for (const auto& d : state.fit_data)
     if (d.accepted) data.push_back(d);

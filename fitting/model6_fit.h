@@ -18,9 +18,12 @@
 // densification of a foam the training impact barely reaches is otherwise
 // free to run to its bound); the two Prony terms (g, tau each; tau_1 in
 // [0.5, 10] ms, below the plate's resolution a Prony term is a dashpot;
-// tau_2 in [10, 300] ms) and the viscosity. The densification exponent is
-// fixed (densification_exponent). Start: a generic landing-mat foam pair
-// with every stress scaled by the training trials' peak stress.
+// tau_2 in [10, 300] ms), the viscosity, and the densification exponent n
+// shared by the two foams (fitted as log(n - 1), n in [1.3, 4]; the whole
+// search runs with n held at densification_exponent and, when that fit is
+// short of the noise, again with it free, keeping n free only when that
+// halves the cost: see free_exponent_cost_ratio). Start: a generic landing-mat foam pair with
+// every stress scaled by the training trials' peak stress.
 //
 // This fitter stands beside fitting/fit.h's (which fits Models 1-5 and the
 // loop's effects): it returns the same TrialReport per trial, so held-out
@@ -64,12 +67,24 @@ struct Model6FitOptions {
   // The second stage stops when an iteration lowers the cost by less than
   // this share (Ceres' function tolerance).
   double function_tolerance = 1e-6;
+  // The densification exponent: the whole search runs with it held at
+  // densification_exponent and, when short of the noise, again with it
+  // free; the free exponent is kept when its fit's cost is at most this
+  // share of the held fit's (one more parameter lowers a structured
+  // misfit's cost a little, and its gain must be the law's shape, not the
+  // misfit's).
+  double free_exponent_cost_ratio = 0.5;
+  // The free path runs only when the held fit's RMS residual (both
+  // channels, noise units) exceeds this: a law that already fits the
+  // training trial near the noise has no steepness to learn.
+  double free_exponent_min_rms = 4.0;
 };
 
 struct Model6FitResult {
   Model6Params params;
   std::vector<std::string> train_ids;
-  // The free parameters, SEs from (J^T J)^-1 scaled by the residual
+  // The free parameters (14, and the densification exponent when the fit
+  // freed it), SEs from (J^T J)^-1 scaled by the residual
   // variance when above the noise (delta method from the logarithms).
   std::vector<ParameterEstimate> estimates;
   std::vector<TrialReport> trials;           // every trial predicted (train: its fitted dt_c)

@@ -11,14 +11,15 @@
 // fit near the noise (RMS under 4 noise SDs on both channels: 1.9 and 1.1
 // on c1, 3.3 and 1.4 on c2, whose plate noise is a few newtons). On the
 // generator's foam (its densification (e_d / (e_d - e))^n - 1 over an
-// exponential plateau, not Model 6's tanh plateau and (e / (e_d - e))^2)
+// exponential plateau, not Model 6's tanh plateau and (e / (e_d - e))^n)
 // the targets hold on some foams and not on others: seed 2407 trains to
 // 3.6 and 0.9 noise SDs and predicts peaks within 0.2 %, travel within
-// 0.15 mm, offsets within 0.05 ms (asserted at the c1/c2 targets); seed
-// 2401, whose base foam the fastest trial drives to twice the training
-// strain, trains to 13 and 5 noise SDs and predicts peaks within 6.4 %,
-// travel within 2.0 mm, offsets within 0.53 ms (asserted at 8 %, 2.5 mm,
-// 0.6 ms and 16 / 6 noise SDs so that a regression shows).
+// 0.15 mm, offsets within 0.05 ms; seed 2401 (densification exponents 1.84
+// and 1.76), fitted with the exponent held at 2, trained to 13 and 5 noise
+// SDs and predicted peaks within 6.4 %; with the exponent freed (1.77
+// fitted) it trains to 2.1 and 1.1 and predicts peaks within 1.1 %, travel
+// within 0.15 mm, offsets within 0.11 ms. Both asserted at the c1/c2
+// targets.
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
@@ -135,7 +136,7 @@ void check_generator(std::uint64_t seed, const Tolerance& tol) {
   check_session(s.session, tt, tol);
 }
 
-TEST(Model6Fit, GeneratorFoam) { check_generator(2401, Tolerance{0.08, 2.5e-3, 6e-4, 16.0, 6.0}); }
+TEST(Model6Fit, GeneratorFoam) { check_generator(2401, Tolerance{}); }
 TEST(Model6Fit, GeneratorFoamWithinTargets) { check_generator(2407, Tolerance{}); }
 
 }  // namespace
