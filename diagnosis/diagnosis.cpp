@@ -337,6 +337,19 @@ std::optional<LowpassDiagnosis> force_channel_and_sync(const SessionData& state,
 
 }  // namespace
 
+namespace {
+
+// The between-trials stage into the result, with each trial's trend scale
+// when the mat changes (the pipeline predicts each trial with it).
+void append_order(DiagnosisResult& result, const OrderDiagnosis& order) {
+  append(result, order);
+  if (order.changed)
+    for (std::size_t i = 0; i < order.ids.size(); ++i)
+      result.trial_stiffness_scale.emplace_back(order.ids[i], order.trend_scale[i]);
+}
+
+}  // namespace
+
 DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& options) {
   DiagnosisResult result;
   MatStageOptions mo = options.mat_stage;
@@ -450,10 +463,7 @@ DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& optio
       // A named force-channel filter: the mat fitted through it is the mat.
       if (lowpass && lowpass->named && lowpass->fit) result.mat_fit = lowpass->fit;
     }
-    if (order) append(result, *order);
-    if (order && order->changed)
-      for (std::size_t i = 0; i < order->ids.size(); ++i)
-        result.trial_stiffness_scale.emplace_back(order->ids[i], order->trend_scale[i]);
+    if (order) append_order(result, *order);
   }
   flush();
   result.plate_correction = correction;
