@@ -4,16 +4,14 @@
 // failing session is reported and the others still run.
 #include <fmt/format.h>
 
-#include <atomic>
 #include <chrono>
 #include <filesystem>
-#include <mutex>
 #include <set>
 #include <thread>
 
 #include "cli/command.h"
-#include "pipeline/outputs.h"
-#include "pipeline/pipeline.h"
+#include "pipeline/run.h"
+#include "report/output.h"
 #include "core/progress.h"
 
 namespace dropfit::cli {
@@ -52,69 +50,23 @@ void add_run(CLI::App& app, CommandContext& ctx) {
       args->sessions = std::move(unique_sessions);
     }
     const size_t n = args->sessions.size();
-    Progress progress;
-    std::vector<std::string> out_dirs(n), errors(n);
-    std::vector<pipeline::RunSummary> summaries(n);
-    // One byte per session: the workers set their own (a vector<bool> packs
-    // several sessions' flags into one word, a data race between workers).
-    std::vector<char> ok(n, 0);
     // Each session its own folder, stable across re-runs, even when two
     // session folders share a name (a/demo and b/demo go to OUT/a__demo and
     // OUT/b__demo).
-    if (n == 1) {
-      out_dirs[0] = args->out;
-    } else {
-      out_dirs = report::session_output_folders(args->out, args->sessions);
-    }
-    // One session: its models in parallel. Several: sessions in parallel.
-    options.threads = n == 1 ? jobs : 1;
-    std::atomic<size_t> next{0};
-    std::vector<std::thread> workers;
-    for (int w = 0; w < std::min<int>(jobs, static_cast<int>(n)); ++w) {
-      workers.emplace_back([&] {
-        for (size_t i; (i = next++) < n;) {
-          try {
-            pipeline::BuildOptions session_options = options;
-            const std::string label = fs::path(args->sessions[i]).filename().string();
-            session_options.say = [&progress, label](const std::string& detail) { progress.update(label, detail); };
-            const pipeline::SessionState state = pipeline::build(args->sessions[i], session_options);
-            report::OutputSet out;
-            pipeline::add_run_outputs(out, state);
-            std::error_code ec;
-            out.set_source(fs::weakly_canonical(fs::absolute(args->sessions[i]), ec).string());
-            std::vector<std::string> protected_dirs(args->sessions.begin(), args->sessions.end());
-            out.commit(out_dirs[i], protected_dirs);
-            summaries[i] = pipeline::summarise(state);
-            // Results are written (the report says why), but a session with
-            // no usable trial or no final model is not a success; a model
-            // that failed beside a final one is a note.
-            const auto& s = summaries[i];
-            if (s.accepted == 0) {
-              errors[i] = fmt::format("no usable trial ({} of {} rejected, reasons in {}/report.html)", s.trials,
-                                      s.trials, out_dirs[i]);
-            } else if (!s.final_model) {
-              errors[i] = fmt::format("no mat model could be fitted (see the notes and {}/report.html)", out_dirs[i]);
-            } else {
-              ok[i] = 1;
-            }
-          } catch (const std::exception& e) {
-            errors[i] = e.what();
-          }
-        }
-      });
-    }
-    for (auto& w : workers) w.join();
-    progress.done();
+    const std::vector<std::string> out_dirs =
+        n == 1 ? std::vector<std::string>{args->out} : report::session_output_folders(args->out, args->sessions);
+    Progress progress;
+    const std::vector<pipeline::SessionRun> runs = pipeline::run_sessions(args->sessions, out_dirs, options, jobs, progress);
 
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     int failed = 0;
     for (size_t i = 0; i < n; ++i) {
-      if (!ok[i]) {
+      const auto& s = runs[i].summary;
+      if (!runs[i].ok) {
         ++failed;
-        fmt::print(stderr, "dropfit: error: session {}: {}\n", args->sessions[i], errors[i]);
-        if (summaries[i].trials == 0 && summaries[i].session.empty()) continue;  // nothing ran
+        fmt::print(stderr, "dropfit: error: session {}: {}\n", args->sessions[i], runs[i].error);
+        if (s.trials == 0 && s.session.empty()) continue;  // nothing ran
       }
-      const auto& s = summaries[i];
       fmt::print("{}: {} of {} trials accepted; report {}/report.html\n", s.session, s.accepted, s.trials, out_dirs[i]);
       for (const auto& note : s.notes) fmt::print("  note: {}\n", note);
     }

@@ -22,7 +22,7 @@ endif()
 set(DROPFIT_INTERNAL_HEADERS
   capture/force_internal.h capture/text_io.h
   capture/footage.h  # dropfit_video (OpenCV footage) stays in the build tree
-  diagnosis/internal.h
+  diagnosis/internal.h pipeline/contact_height.h
   fitting/models_impl.h fitting/model5_impl.h fitting/model5_layout.h fitting/model5_dual.h
   fitting/model5_integrator.h)
 
