@@ -512,17 +512,10 @@ double descent_balance(const PlateTrial& t, const PlateCorrection& c, double mas
     return kNaN;
   const Eigen::VectorXd f = c.apply(t.t_s, t.fz_n, t.contact_time_s);
   const double descent_s = t.max_deformation_time_s - t.contact_time_s;
-  const double t0 = t.contact_time_s - 0.010, t1 = t.contact_time_s + scale * descent_s;
-  double impulse = 0.0;
-  for (Eigen::Index i = 0; i + 1 < n; ++i) {
-    const double a = std::max(t.t_s(i), t0), b = std::min(t.t_s(i + 1), t1);
-    if (!(b > a)) continue;
-    // The trapezoid's part within [a, b] (linear between the samples).
-    const double h = t.t_s(i + 1) - t.t_s(i);
-    const double fa = f(i) + (f(i + 1) - f(i)) * (a - t.t_s(i)) / h;
-    const double fb = f(i) + (f(i + 1) - f(i)) * (b - t.t_s(i)) / h;
-    impulse += 0.5 * (fa + fb) * (b - a);
-  }
+  // Within the record only (no force is read past its ends).
+  const double t0 = std::max(t.contact_time_s - 0.010, t.t_s(0));
+  const double t1 = std::min(t.contact_time_s + scale * descent_s, t.t_s(n - 1));
+  const double impulse = trial::integrate(t.t_s, f, t0, t1);
   const double momentum = mass_kg * (t.impact_velocity_m_s + g * descent_s);
   return momentum > 0.0 ? impulse / momentum : kNaN;
 }

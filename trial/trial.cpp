@@ -67,27 +67,6 @@ double interpolate_uniform(const Eigen::VectorXd& y, double t0, double dt, doubl
   return (1.0 - w) * y[i] + w * y[i + 1];
 }
 
-// Trapezoid integral of f(t) (samples on t) from a to b, ends interpolated.
-double integrate(const Eigen::VectorXd& t, const Eigen::VectorXd& f, double a, double b) {
-  if (!(b > a)) return 0.0;
-  const Eigen::Index n = t.size();
-  auto at = [&](double x) {
-    const Eigen::Index k = std::upper_bound(t.data(), t.data() + n, x) - t.data();
-    if (k <= 0) return f[0];
-    if (k >= n) return f[n - 1];
-    const double w = (x - t[k - 1]) / (t[k] - t[k - 1]);
-    return (1.0 - w) * f[k - 1] + w * f[k];
-  };
-  double sum = 0.0, prev_t = a, prev_f = at(a);
-  for (Eigen::Index k = std::upper_bound(t.data(), t.data() + n, a) - t.data(); k < n && t[k] < b; ++k) {
-    sum += 0.5 * (prev_f + f[k]) * (t[k] - prev_t);
-    prev_t = t[k];
-    prev_f = f[k];
-  }
-  sum += 0.5 * (prev_f + at(b)) * (b - prev_t);
-  return sum;
-}
-
 std::string join(const std::vector<std::string>& parts, const char* sep) {
   std::string out;
   for (const auto& p : parts) {
@@ -722,6 +701,26 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
 }
 
 }  // namespace
+
+double integrate(const Eigen::VectorXd& t, const Eigen::VectorXd& f, double a, double b) {
+  if (!(b > a)) return 0.0;
+  const Eigen::Index n = t.size();
+  auto at = [&](double x) {
+    const Eigen::Index k = std::upper_bound(t.data(), t.data() + n, x) - t.data();
+    if (k <= 0) return f[0];
+    if (k >= n) return f[n - 1];
+    const double w = (x - t[k - 1]) / (t[k] - t[k - 1]);
+    return (1.0 - w) * f[k - 1] + w * f[k];
+  };
+  double sum = 0.0, prev_t = a, prev_f = at(a);
+  for (Eigen::Index k = std::upper_bound(t.data(), t.data() + n, a) - t.data(); k < n && t[k] < b; ++k) {
+    sum += 0.5 * (prev_f + f[k]) * (t[k] - prev_t);
+    prev_t = t[k];
+    prev_f = f[k];
+  }
+  sum += 0.5 * (prev_f + at(b)) * (b - prev_t);
+  return sum;
+}
 
 // See trial.h.
 double trajectory_shift_s(const Eigen::VectorXd& force_t_s, const Eigen::VectorXd& force_n, Eigen::Index force_first,

@@ -343,6 +343,11 @@ struct TrialResult {
   std::string report() const;
 };
 
+// Trapezoid integral of f (samples on the increasing times t) from a to b,
+// the ends interpolated linearly between samples; beyond the samples f is
+// held at its first or last value. 0 when b <= a.
+double integrate(const Eigen::VectorXd& t, const Eigen::VectorXd& f, double a, double b);
+
 // The trial from a processed force record.
 TrialResult analyse(const forceplate::ForceTrial& force, const reconstruction::Trajectories& markers,
                     const TrialOptions& options);
