@@ -533,12 +533,11 @@ struct TimeBaseCheck {
   int n = 0;
 };
 // Beyond this departure of the quotient from 1 (and 3 SE) the time base is
-// named. The mat's own momentum at the impactor's deepest point (a foam
-// column is still moving there) and the deepest instant's error move it on a
-// sound record: +0.7 to +3.1 % on the shared chain-model sessions, +2.6 to
-// +6.3 % on the shared foam columns. A rate declared 1250 Hz for 1000 Hz moves it by +38 %, a
-// factor of two by +96 %; a rate off by less than about 8 % is not told
-// from a gain.
+// named. On a sound record the mat's own momentum at the impactor's deepest
+// point (a foam column is still moving there) and the deepest instant's
+// error move it by a few per cent; a rate off by a quarter moves it by
+// tens of per cent, and one off by less than about 8 % is not told from a
+// gain (the measured spread: docs/diagnosis.md, "the force time base").
 constexpr double kTimeBaseTolerance = 0.15;
 TimeBaseCheck force_time_base(const std::vector<PlateTrial>& trials, const std::vector<double>& whole,
                               const PlateCorrection& c, double mass_kg, double g) {
