@@ -15,6 +15,7 @@
 #include "calibration/triangulation.h"
 #include "core/error.h"
 #include "core/validate.h"
+#include "core/median.h"
 
 namespace dropfit::calibration {
 namespace {
@@ -245,14 +246,6 @@ std::string mm(double metres) {
   return std::abs(v) < 100.0 ? fmt::format("{:.2f}", v) : std::abs(v) < 1e5 ? fmt::format("{:.1f}", v) : fmt::format("{:.3g}", v);
 }
 
-double median(std::vector<double> values) {
-  if (values.empty()) return kNaN;
-  const auto mid = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
-  std::nth_element(values.begin(), mid, values.end());
-  double m = *mid;
-  if (values.size() % 2 == 0) m = 0.5 * (m + *std::max_element(values.begin(), mid));
-  return m;
-}
 
 }  // namespace
 

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <limits>
 
+#include "core/median.h"
 #include "diagnosis/diagnosis.h"
 #include "diagnosis/internal.h"
 
@@ -27,12 +28,6 @@ bool same_record(const forceplate::ForceTrial& a, const forceplate::ForceTrial& 
   return ((x - y).array().abs() <= 1e-9 * (1.0 + x.array().abs())).all();
 }
 
-double median(std::vector<double> v) {
-  if (v.empty()) return std::numeric_limits<double>::quiet_NaN();
-  std::sort(v.begin(), v.end());
-  const std::size_t m = v.size() / 2;
-  return v.size() % 2 ? v[m] : 0.5 * (v[m - 1] + v[m]);
-}
 
 // One recording under two trial ids (copied files, or a folder read twice):
 // the later ones rejected.

@@ -45,6 +45,7 @@
 // (the impactor's tilt), so a shear channel carrying a vertical load shows
 // too. Either beyond its bound (12 % twist, 25 % shear) rejects the record,
 // naming the suspect channels.
+#include "core/median.h"
 #include "forceplate/forceplate.h"
 
 #include <fmt/format.h>
@@ -67,16 +68,6 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr double kMaxTwistFraction = 0.12;
 constexpr double kMaxShearFraction = 0.25;
 
-double median(std::vector<double> v) {
-  if (v.empty()) return kNaN;
-  const std::size_t mid = v.size() / 2;
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid), v.end());
-  double m = v[mid];
-  if (v.size() % 2 == 0) {
-    m = 0.5 * (m + *std::max_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid)));
-  }
-  return m;
-}
 
 struct RobustLevel {
   double mean = 0.0;

@@ -6,18 +6,12 @@
 #include <cmath>
 #include <vector>
 
+#include "core/median.h"
 #include "pipeline/pipeline.h"
 #include "trial/trial.h"
 
 namespace dropfit::pipeline {
 namespace {
-
-double median_of(std::vector<double> v) {
-  if (v.empty()) return std::numeric_limits<double>::quiet_NaN();
-  std::sort(v.begin(), v.end());
-  const std::size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
 
 // What the correction is judged by: the accepted trials' clock offsets
 // (their SD, ms), the height their 1 / speed trend implies (mm), and the
@@ -58,7 +52,7 @@ std::optional<MatTopCorrection> confirmed_mat_top(const SessionState& state) {
   std::vector<double> rest;
   for (const auto& t : state.trials)
     if (t.result.accepted && std::isfinite(t.result.surface_rest_z_m)) rest.push_back(t.result.surface_rest_z_m);
-  c.surface_m = median_of(rest);
+  c.surface_m = median(rest);
   if (!std::isfinite(c.surface_m)) return std::nullopt;
   const double off_m = c.surface_m - c.declared_m;
   // Within the trial stage's reach the surface markers are already the mat top.
