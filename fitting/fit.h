@@ -79,6 +79,8 @@
 // AR(1) noise at most 3.84: chi-square, one degree of freedom, 95 %) makes
 // each parameter whose value there lies outside its interval not
 // identifiable, its interval spanning both basins (the reason in note).
+// A basin the test rejects keeps its posterior share in the SE (the spread
+// over the basins; basin_se the best optimum's own), not in the interval.
 // A direction the data do not constrain leaves no interval at all.
 // A parameter is `model_limited` when a channel's residual stays above its
 // noise (RMS over 1.5 noise SDs with lag-1 correlation over 0.5): its
@@ -254,6 +256,10 @@ struct ParameterEstimate {
   // With interval "basins": the best optimum's own interval.
   double basin_ci_low = std::numeric_limits<double>::quiet_NaN();
   double basin_ci_high = std::numeric_limits<double>::quiet_NaN();
+  // When a basin the likelihood-ratio test rejects keeps a posterior share
+  // that moves this parameter (fitting/identify.cpp), se holds the spread
+  // over the basins and this the best optimum's own SE; NaN otherwise.
+  double basin_se = std::numeric_limits<double>::quiet_NaN();
 };
 
 // A predicted quantity and its 95 % interval for the true value.

@@ -224,6 +224,50 @@ void profile_intervals(const Profiler& pf, const ErrorBudget& budget, FitResult*
   }
 }
 
+// A basin the likelihood-ratio test rejects (statistic W above 3.84).
+struct Trailing {
+  double w;
+  Eigen::VectorXd u;
+};
+
+// A rejected basin still holds the truth now and then (the test's own 5 %),
+// and then every parameter that differs between the basins misses by many
+// of this basin's SEs: no SE of one basin describes an error that jumps
+// between two. The SE states the spread over the basins as a posterior with
+// equal priors weighs them (each basin exp(-W / 2) against the best's 1):
+// SE^2 = SE_here^2 + sum_b P_b (value_b - value)^2, P_b the basin's share.
+// A basin far behind (W of 20: a share of 5e-5) leaves it as it was. The
+// interval stays the likelihood-ratio set, which excludes that basin.
+void widen_by_trailing_basins(const ParamSpace& space, const std::vector<Trailing>& trailing, FitResult* res) {
+  if (trailing.empty()) return;
+  double total = 1.0;
+  for (const Trailing& t : trailing) total += std::exp(-0.5 * t.w);
+  std::vector<std::string> names;
+  double w_min = std::numeric_limits<double>::infinity();
+  for (int j = 0; j < space.size(); ++j) {
+    ParameterEstimate& e = res->estimates[j];
+    if (!(e.se >= 0.0) || e.interval == "basins") continue;
+    double spread2 = 0.0;
+    for (const Trailing& t : trailing) {
+      const double d = space.value_of(space.free[j], t.u[j]) - e.value;
+      spread2 += std::exp(-0.5 * t.w) / total * d * d;
+    }
+    const double se = std::sqrt(e.se * e.se + spread2);
+    if (!(se > 1.05 * e.se)) continue;  // the other basins agree on this parameter
+    e.basin_se = e.se;
+    e.se = se;
+    e.rel_se = se / std::max(std::abs(e.value), 1e-300);
+    names.push_back(e.name);
+  }
+  if (names.empty()) return;
+  for (const Trailing& t : trailing) w_min = std::min(w_min, t.w);
+  res->warnings.push_back(fmt::format("another basin fits less well but not by far (likelihood-ratio statistic {:.2f} > "
+                                      "{:.2f}, a posterior share of {:.2g} %): the SEs of {} include the spread over "
+                                      "the basins (se_this_basin: this basin's own); the intervals exclude it",
+                                      w_min, kChi2One95, 100.0 * std::exp(-0.5 * w_min) / total,
+                                      fmt::join(names, ", ")));
+}
+
 // The other optima the search found (the conjugate basin's among them)
 // that a parameter's 95 % set reaches: that parameter is not identifiable
 // and its interval spans both basins.
@@ -233,6 +277,7 @@ void basin_intervals(const Profiler& pf, const Search& s, const ErrorBudget& bud
   std::vector<Optimum> sorted = s.others;
   std::sort(sorted.begin(), sorted.end(), [](const Optimum& a, const Optimum& b) { return a.cost < b.cost; });
   std::vector<Eigen::VectorXd> kept = {s.best.u};
+  std::vector<Trailing> trailing;
   for (const Optimum& other : sorted) {
     bool seen = false;
     for (const auto& u : kept) seen = seen || (other.u - u).cwiseAbs().maxCoeff() < 0.2;
@@ -246,7 +291,12 @@ void basin_intervals(const Profiler& pf, const Search& s, const ErrorBudget& bud
     } catch (const Error&) {
       continue;
     }
-    if (!(w <= kChi2One95)) continue;
+    if (!(w <= kChi2One95)) {
+      bool again = false;
+      for (const Trailing& t : trailing) again = again || (other.u - t.u).cwiseAbs().maxCoeff() < 0.2;
+      if (std::isfinite(w) && !again) trailing.push_back({w, other.u});
+      continue;
+    }
     std::vector<int> reached;
     for (int j = 0; j < np; ++j) {
       const ParameterEstimate& e = res->estimates[j];
@@ -299,6 +349,7 @@ void basin_intervals(const Profiler& pf, const Search& s, const ErrorBudget& bud
                                         "statistic {:.2f} <= {:.2f}): {}; the intervals of {} span both",
                                         w, kChi2One95, alt_text, fmt::join(names, ", ")));
   }
+  widen_by_trailing_basins(space, trailing, res);
 }
 
 }  // namespace

@@ -283,6 +283,7 @@ std::string fit_json(const fitting::FitResult& fit, double impactor_mass_kg, con
                          {"note", e.note},
                          {"ci_low_95_this_basin", number_or_null(e.basin_ci_low)},
                          {"ci_high_95_this_basin", number_or_null(e.basin_ci_high)},
+                         {"se_this_basin", number_or_null(e.basin_se)},
                          {"se_white_noise", number_or_null(e.se_white)},
                          {"model_limited", e.model_limited}});
   }
