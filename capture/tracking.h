@@ -248,6 +248,18 @@ void merge_camera_tracks(MarkerTracks2D& all, const MarkerTracks2D& camera_track
 std::vector<Seed> read_seed_csv(const std::string& path, const std::vector<std::string>& points);
 void write_seed_csv(const std::string& path, const std::vector<Seed>& seeds);
 
+// A seed for every camera at once: the point's approximate lab position in
+// its first frame (`point,frame,x_m,y_m,z_m`, header required, blank and '#'
+// lines skipped), projected into each camera through the session's
+// calibration (pipeline/track.h) and snapped to the marker near there.
+struct LabSeed {
+  std::string point;
+  int frame = 0;
+  Eigen::Vector3d lab_m = Eigen::Vector3d::Zero();
+  int line = 0;
+};
+std::vector<LabSeed> read_lab_seed_csv(const std::string& path, const std::vector<std::string>& points);
+
 // A camera's result with its rows renumbered from `first_frame`: rows
 // 0..first_frame-1 are prepended as NaN (flag BeforeSeed) and the warnings'
 // frames shifted, so that row k is the footage's frame k.
