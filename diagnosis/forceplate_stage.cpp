@@ -9,6 +9,7 @@
 
 #include "diagnosis/diagnosis.h"
 #include "diagnosis/internal.h"
+#include "trial/trial.h"
 
 namespace dropfit::diagnosis {
 namespace {
@@ -189,9 +190,8 @@ double impulse_ratio(const PlateTrial& t, const PlateCorrection& c, double mass_
   // before the contact starts it).
   Eigen::Index i0 = 0;
   while (i0 + 1 < n && t.t_s(i0 + 1) <= t.contact_time_s) ++i0;
-  double impulse = 0.0;
-  for (Eigen::Index k = i0; k < ie; ++k) impulse += 0.5 * (f(k) + f(k + 1)) * dt;
   const double t_c = t.t_s(i0);
+  const double impulse = trial::integrate(t.t_s, f, t_c, te);
   const double momentum = mass_kg * (t.impact_velocity_m_s + ve) + weight * (te - t_c);
   return momentum > 0.0 ? impulse / momentum : nan;
 }
