@@ -129,6 +129,8 @@ struct StepView {
   const S *u = nullptr, *v = nullptr, *a = nullptr, *q1 = nullptr, *q2 = nullptr, *se = nullptr;
   S m0, eta, e1, e2, b1, b2;  // node 0's moving mass; viscosity; the Prony recursion's coefficients
   S top_load;                 // the impactor's weight on node 0 while in contact (0 otherwise)
+  bool driven = false;        // node 0's travel is prescribed (co-simulation): its equation is u_0 = given
+  S top_velocity;             // and its velocity at the step's end
 };
 
 // The step's work arrays: node travels un and velocities vn at the step's
@@ -170,9 +172,14 @@ bool newton_iteration(const StepView<S>& c, double dt, StepWork<S>& w, double& s
   const S A(c.area);
   const int n = c.n;
   for (int j = 0; j < n; ++j) w.vn[j] = S(c2) * (w.un[j] - c.u[j]) - c.v[j];
+  if (c.driven) w.vn[0] = c.top_velocity;
   step_stresses(c, dt, w);
   double rmax = 0.0;
   for (int j = 0; j < n; ++j) {
+    if (j == 0 && c.driven) {  // no correction to a prescribed travel
+      w.res[0] = S(0.0), w.diag[0] = S(1.0), w.off[0] = S(0.0);
+      continue;
+    }
     const S mj = j == 0 ? c.m0 : c.mass[j];
     const S acc = S(c4) * (w.un[j] - c.u[j] - S(dt) * c.v[j]) - c.a[j];
     S f = -A * (w.sign[j] - c.ss[j]);
@@ -200,8 +207,49 @@ bool newton_iteration(const StepView<S>& c, double dt, StepWork<S>& w, double& s
 template <typename T>
 class Column {
  public:
-  Column(const Model6ParamsT<T>& p, const Model6Geometry& g, const Impact& imp)
-      : imp_(imp), area_(g.area_m2) {
+  Column(const Model6ParamsT<T>& p, const Model6Geometry& g, const Impact& imp) : imp_(imp), area_(g.area_m2) {
+    build(p, g);
+    // The plastic collision of the impactor with node 0.
+    const T M(imp.mass_kg);
+    v_[0] = M * T(imp.velocity_m_s) / (M + mass_[0]);
+    a_[0] = M * T(imp.gravity_m_s2) / (M + mass_[0]);
+    contact_ = true;
+  }
+  // The column at rest with no impactor (co-simulation, model6_cosim.h):
+  // node 0 is driven by drive() or free.
+  Column(const Model6ParamsT<T>& p, const Model6Geometry& g, double gravity_m_s2) : area_(g.area_m2) {
+    imp_.mass_kg = 0.0;
+    imp_.velocity_m_s = 0.0;
+    imp_.gravity_m_s2 = gravity_m_s2;
+    build(p, g);
+    contact_ = false;
+  }
+
+  int nodes() const { return n_; }
+  int interface_node() const { return n_top_; }
+  bool contact() const { return contact_; }
+  const T& u(int j) const { return u_[j]; }
+  const T& v(int j) const { return v_[j]; }
+  const T& node_mass(int j) const { return mass_[j]; }
+  T impactor() const { return contact_ ? u_[0] : z_; }
+  T plate_force() const { return area_ * (sigma_[n_ - 1] - ss_[n_ - 1]); }
+  T strain(int j) const { return es_[j] + (u_[j] - (j + 1 < n_ ? u_[j + 1] : T(0.0))) / h_[j]; }
+
+  // One trapezoidal step of length dt; returns false on a contact change (at its end).
+  bool step(double dt);
+  // Co-simulation: one step with node 0 driven to `top_travel` at its end
+  // with velocity `top_velocity` (null: node 0 free, as the column with
+  // nothing on it). Returns the force the driver exerts on node 0
+  // (downwards), m_0 a_0 + A (s_0 - s_0,static): the mat's push on whatever
+  // drives it. A driven node's velocity is the driver's and its acceleration
+  // the velocity's change over the step (the trapezoidal rule's own, from a
+  // prescribed travel, rings from step to step).
+  T drive(double dt, const double* top_travel, double top_velocity = 0.0);
+  // Node 0 takes the velocity v (a plastic landing on it).
+  void set_top_velocity(const T& v) { v_[0] = v; }
+
+ private:
+  void build(const Model6ParamsT<T>& p, const Model6Geometry& g) {
     const int nt = g.n_top, nb = g.base_thickness_m > 0.0 ? g.n_base : 0;
     n_ = nt + nb;
     n_top_ = nt;
@@ -225,25 +273,7 @@ class Column {
     a_.assign(n_, T(0.0));
     q1_.assign(n_, T(0.0));
     q2_.assign(n_, T(0.0));
-    // The plastic collision of the impactor with node 0.
-    const T M(imp.mass_kg);
-    v_[0] = M * T(imp.velocity_m_s) / (M + mass_[0]);
-    a_[0] = M * T(imp.gravity_m_s2) / (M + mass_[0]);
-    contact_ = true;
   }
-
-  int nodes() const { return n_; }
-  int interface_node() const { return n_top_; }
-  bool contact() const { return contact_; }
-  const T& u(int j) const { return u_[j]; }
-  T impactor() const { return contact_ ? u_[0] : z_; }
-  T plate_force() const { return area_ * (sigma_[n_ - 1] - ss_[n_ - 1]); }
-  T strain(int j) const { return es_[j] + (u_[j] - (j + 1 < n_ ? u_[j + 1] : T(0.0))) / h_[j]; }
-
-  // One trapezoidal step of length dt; returns false on a contact change (at its end).
-  bool step(double dt);
-
- private:
   void newton(double dt);            // the step's node travels w_.un (from their start there)
   void finish_step(double dt);       // the state at the step's end from w_.un
   bool advance_contact(double dt);   // the contact's change; false when it changed
@@ -269,6 +299,8 @@ class Column {
   T g1_, g2_, tau1_, tau2_, eta_;
   bool contact_ = true;
   T z_ = T(0.0), vz_ = T(0.0);  // the impactor in flight
+  bool driven_ = false;         // within drive() with node 0 prescribed
+  T top_velocity_ = T(0.0);     // its velocity at the step's end
   // Work arrays (no allocation in the time loop).
   StepWork<T> w_;
   mutable double prony_dt_ = -1.0;
@@ -341,7 +373,22 @@ StepView<T> Column<T>::view() const {
   c.m0 = contact_ ? mass_[0] + M : mass_[0];
   c.top_load = contact_ ? M * T(imp_.gravity_m_s2) : T(0.0);
   c.eta = eta_, c.e1 = e1_, c.e2 = e2_, c.b1 = b1_, c.b2 = b2_;
+  c.driven = driven_;
+  c.top_velocity = top_velocity_;
   return c;
+}
+
+template <typename T>
+T Column<T>::drive(double dt, const double* top_travel, double top_velocity) {
+  for (int j = 0; j < n_; ++j) w_.un[j] = u_[j] + T(dt) * v_[j] + T(0.25 * dt * dt) * a_[j];
+  driven_ = top_travel != nullptr;
+  const T v_before = v_[0];
+  if (driven_) w_.un[0] = T(*top_travel), top_velocity_ = T(top_velocity);
+  newton(dt);
+  finish_step(dt);
+  if (driven_) a_[0] = (v_[0] - v_before) / T(dt);
+  driven_ = false;
+  return mass_[0] * a_[0] + T(area_) * (sigma_[0] - ss_[0]);
 }
 
 template <typename T>
@@ -374,6 +421,8 @@ void Column<T>::newton(double dt) {
     d.se = se_d_.data();
     d.m0 = val(c.m0), d.top_load = val(c.top_load);
     d.eta = val(eta_), d.e1 = val(e1_), d.e2 = val(e2_), d.b1 = val(b1_), d.b2 = val(b2_);
+    d.driven = c.driven;
+    d.top_velocity = val(c.top_velocity);
     bool converged = false;
     for (int it = 0; it < 30 && !converged; ++it) converged = newton_iteration(d, dt, w_d_, scale);
     if (converged) {
@@ -395,6 +444,7 @@ void Column<T>::finish_step(double dt) {
   const double c4 = 4.0 / (dt * dt), c2 = 2.0 / dt;
   const StepView<T> c = view();
   for (int j = 0; j < n_; ++j) w_.vn[j] = T(c2) * (w_.un[j] - u_[j]) - v_[j];
+  if (driven_) w_.vn[0] = top_velocity_;
   step_stresses(c, dt, w_);
   for (int j = 0; j < n_; ++j) {
     q1_[j] = e1_ * q1_[j] + b1_ * (w_.sen[j] - se_[j]);
