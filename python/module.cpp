@@ -1,6 +1,6 @@
 // The Python module dropfit._dropfit (imported by python/dropfit/__init__.py):
 // running a session through the pipeline, reading and simulating a fitted
-// mat, and the co-simulation contact (fitting/cosim.h). Arrays are numpy
+// mat, and the co-simulation contacts (fitting/cosim.h, fitting/model6_cosim.h). Arrays are numpy
 // arrays (pybind11/eigen.h); mat parameters are dicts keyed by the names of
 // fit.json ("k1_n_m", ...); dropfit::Error and InputError become
 // dropfit.Error and dropfit.InputError.
@@ -18,8 +18,10 @@
 #include "pipeline/pipeline.h"
 #include "core/error.h"
 #include "fitting/cosim.h"
+#include "fitting/model6_cosim.h"
 #include "fitting/models.h"
 #include "report/export.h"
+#include "report/model6_results.h"
 #include "report/output.h"
 
 namespace py = pybind11;
@@ -163,6 +165,26 @@ void bind_contact(py::module_& m) {
       .def_property_readonly("layer1_m", &fitting::MatContact::layer1_m)
       .def_property_readonly("layer2_m", &fitting::MatContact::layer2_m)
       .def_property_readonly("model", [](const fitting::MatContact& mat) { return fitting::model_name(mat.kind()); });
+
+  py::class_<fitting::ColumnContact>(m, "ColumnContact",
+                                     "A fitted Model 6 foam column stepped by another simulator's foot "
+                                     "(fitting/model6_cosim.h); the same steps and forces as MatContact.")
+      .def(py::init([](const std::string& path, double gravity_m_s2) {
+             std::ifstream in(path, std::ios::binary);
+             if (!in) throw Error("cannot read " + path);
+             std::stringstream text;
+             text << in.rdbuf();
+             const auto file = report::parse_model6_fit_json(text.str(), path);
+             return fitting::ColumnContact(file.params, file.geometry, gravity_m_s2);
+           }),
+           py::arg("fit_json_path"), py::arg("gravity_m_s2") = 9.81, "From a Model 6 fit.json.")
+      .def("reset", &fitting::ColumnContact::reset, py::arg("penetration_m"), py::arg("velocity_m_s"),
+           "The column at rest and the foot at this state now, without advancing time.")
+      .def("step", &fitting::ColumnContact::step, py::arg("penetration_m"), py::arg("velocity_m_s"),
+           py::arg("dt_s"), "Advances the column by dt_s to the foot's new state; returns ContactForces.")
+      .def_property_readonly("in_contact", &fitting::ColumnContact::in_contact)
+      .def_property_readonly("surface_m", &fitting::ColumnContact::surface_m)
+      .def_property_readonly("interface_m", &fitting::ColumnContact::interface_m);
 }
 
 }  // namespace

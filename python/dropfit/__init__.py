@@ -11,9 +11,9 @@ arrays, simulate a fitted mat and step the co-simulation contact.
 Units are in the names (SI): _m, _s, _n, _kg. docs/python.md has the whole
 interface; docs/formats.md the files behind Results.
 """
-from ._dropfit import (ContactForces, Error, Fit, InputError, MatContact, parse_fit, read_fit,
+from ._dropfit import (ColumnContact, ContactForces, Error, Fit, InputError, MatContact, parse_fit, read_fit,
                        run_session, simulate)
 from .results import Results, read_results, run
 
-__all__ = ["ContactForces", "Error", "Fit", "InputError", "MatContact", "Results", "parse_fit", "read_fit",
+__all__ = ["ColumnContact", "ContactForces", "Error", "Fit", "InputError", "MatContact", "Results", "parse_fit", "read_fit",
            "read_results", "run", "run_session", "simulate"]
