@@ -85,12 +85,6 @@ Worst scan(const std::string& label, const Session& session, const std::vector<T
   if (const char* e = std::getenv("M6_ELEMENTS")) std::sscanf(e, "%d,%d,%lf", &o.geometry.n_top, &o.geometry.n_base,
                                                                &o.geometry.max_step_s);
   if (const char* e = std::getenv("M6_HELD_EXPONENT"); e && *e == '1') o.free_exponent_cost_ratio = 0.0;
-  if (const char* e = std::getenv("M6_FREE")) {  // which shape parameters the free path frees beside n: c, b
-    const std::string f(e);
-    o.free_densification_shape = f.find('c') != std::string::npos;
-  }
-  if (const char* e = std::getenv("M6_SHAPE_START")) o.densification_shape_start = std::atof(e);
-  if (const char* e = std::getenv("M6_NMIN")) o.min_densification_exponent = std::atof(e);
   std::vector<fitting::TrialData> data;
   for (const auto& d : state.fit_data)
     if (d.accepted) data.push_back(d);
@@ -138,7 +132,7 @@ Worst scan(const std::string& label, const Session& session, const std::vector<T
     }
   std::printf("  held out within: peak %.2f %%, travel %.2f mm, offset %.3f ms, |z| %.1f\n", 100.0 * w.peak,
               1e3 * w.travel_m, 1e3 * w.offset_s, w.z);
-  for (const auto& e : fit.estimates) std::printf("    %-26s %.4g%s\n", e.name.c_str(), e.value, e.at_bound ? " (bound)" : "");
+  for (const auto& e : fit.estimates) std::printf("    %-22s %.4g%s\n", e.name.c_str(), e.value, e.at_bound ? " (bound)" : "");
   return w;
 }
 

@@ -15,17 +15,11 @@
 //
 // Constitutive law of an element at compressive engineering strain e
 // (positive = compressed), one law per layer:
-//   elastic   s_e(e) = s_p tanh(E e / s_p) + H e + D ((c + r)^n - c^n),
-//             r = e / (e_d - e)
+//   elastic   s_e(e) = s_p tanh(E e / s_p) + H e + D (e / (e_d - e))^n
 //             E: initial modulus (the linear part up to about s_p / E),
 //             s_p: plateau stress, H: plateau hardening modulus,
 //             D, e_d, n: densification (the stress diverges as e -> e_d,
-//             the strain at which the cells are fully collapsed); c >= 0
-//             its shape: c = 0 (D r^n) a densification felt only near
-//             e_d, as of a foam whose cells collapse together; c = 1
-//             (D ((e_d / (e_d - e))^n - 1), Gibson and Ashby's form) one
-//             that stiffens from small strains, as of a foam whose cells
-//             of spread sizes close one after another. Past
+//             the strain at which the cells are fully collapsed). Past
 //             0.97 e_d the curve continues along its tangent (a finite
 //             stiffness for the integrator's Newton steps; a mat is never
 //             driven there by a fitted impact).
@@ -71,12 +65,11 @@ struct FoamLaw {
   double densification_pa = 500.0;     // D
   double densification_strain = 0.85;  // e_d
   double densification_exponent = 2.0;  // n
-  double densification_shape = 0.0;     // c
 };
 
 struct Model6Params {
   FoamLaw top;                        // the top layer's law
-  FoamLaw base{4.0e4, 8.0e5, 1.0e5, 6.0e3, 0.8, 2.0, 0.0};  // the base layer's
+  FoamLaw base{4.0e4, 8.0e5, 1.0e5, 6.0e3, 0.8, 2.0};  // the base layer's
   double prony_g1 = 0.5, prony_tau1_s = 2e-3;
   double prony_g2 = 0.3, prony_tau2_s = 4e-2;
   double viscosity_pa_s = 50.0;       // eta
@@ -105,7 +98,7 @@ struct Model6Result {
 };
 
 // Simulates one impact. Throws dropfit::Error for parameters the model
-// cannot use (non-positive moduli, masses or sizes, e_d outside (0, 1], c < 0).
+// cannot use (non-positive moduli, masses or sizes, e_d outside (0, 1]).
 Model6Result simulate_model6_detailed(const Model6Params& params, const Model6Geometry& geometry,
                                       const Impact& impact);
 Simulation simulate_model6(const Model6Params& params, const Model6Geometry& geometry, const Impact& impact);

@@ -25,31 +25,21 @@ const std::vector<std::string>& free_names() {
   static const std::vector<std::string> names{
       "top_plateau_pa",  "top_modulus_pa",  "top_hardening_pa",  "top_densification_pa", "densification_strain",
       "base_plateau_pa", "base_modulus_pa", "base_hardening_pa", "base_densification_pa", "prony_g1",
-      "prony_tau1_s",    "prony_g2",        "prony_tau2_s",      "viscosity_pa_s",       "densification_exponent",
-      "densification_shape"};
+      "prony_tau1_s",    "prony_g2",        "prony_tau2_s",      "viscosity_pa_s",       "densification_exponent"};
   return names;
 }
-constexpr int kFree = 16;
+constexpr int kFree = 15;
 constexpr int kExponent = 14;  // the index of log(n - 1)
-constexpr int kShape = 15;     // log c
-constexpr int kJetWidth = (kFree + 2) / 2;  // the parameters and the clock shift in two passes
 
-// Which of the law's shape parameters a search frees (held: n at options'
-// densification_exponent, c = 0).
-struct Freedom {
-  bool exponent = false, shape = false;
-  bool frees(int i) const { return (i == kExponent && exponent) || (i == kShape && shape) || i < kExponent; }
-};
-
-// The parameters at u under `f`.
+// The parameters at u; the densification exponent is options'
+// densification_exponent unless `free_exponent` (then 1 + exp(u[14])).
 template <typename T>
-Model6ParamsT<T> params_of(const T* u, const Model6FitOptions& o, const Freedom& f) {
+Model6ParamsT<T> params_of(const T* u, const Model6FitOptions& o, bool free_exponent) {
   using std::exp;
   Model6ParamsT<T> p;
-  const T n = f.exponent ? T(1.0) + exp(u[kExponent]) : T(o.densification_exponent), ed = exp(u[4]);
-  const T c = f.shape ? exp(u[kShape]) : T(0.0);
-  p.top = {exp(u[0]), exp(u[1]), exp(u[2]), exp(u[3]), ed, n, c};
-  p.base = {exp(u[5]), exp(u[6]), exp(u[7]), exp(u[8]), ed, n, c};
+  const T n = free_exponent ? T(1.0) + exp(u[kExponent]) : T(o.densification_exponent), ed = exp(u[4]);
+  p.top = {exp(u[0]), exp(u[1]), exp(u[2]), exp(u[3]), ed, n};
+  p.base = {exp(u[5]), exp(u[6]), exp(u[7]), exp(u[8]), ed, n};
   p.prony_g1 = exp(u[9]);
   p.prony_tau1_s = exp(u[10]);
   p.prony_g2 = exp(u[11]);
@@ -60,11 +50,11 @@ Model6ParamsT<T> params_of(const T* u, const Model6FitOptions& o, const Freedom&
   return p;
 }
 
-Model6Params to_params(const double* u, const Model6FitOptions& o, const Freedom& f) {
-  const Model6ParamsT<double> t = params_of(u, o, f);
+Model6Params to_params(const double* u, const Model6FitOptions& o, bool free_exponent) {
+  const Model6ParamsT<double> t = params_of(u, o, free_exponent);
   auto law = [](const FoamLawT<double>& l) {
-    return FoamLaw{l.plateau_pa,           l.modulus_pa,           l.hardening_pa,          l.densification_pa,
-                   l.densification_strain, l.densification_exponent, l.densification_shape};
+    return FoamLaw{l.plateau_pa, l.modulus_pa, l.hardening_pa, l.densification_pa, l.densification_strain,
+                   l.densification_exponent};
   };
   Model6Params p;
   p.top = law(t.top);
@@ -158,12 +148,12 @@ T at(const std::vector<T>& y, const S& tau, double h) {
 struct TrialCost {
   const Window* w;
   const Model6FitOptions* o;
-  const Freedom* freedom;  // the fitter's stage: a held parameter's column is zero and LM leaves it
+  const bool* free_exponent;  // the fitter's stage: held, the exponent's column is zero and LM leaves it
   template <typename T>
   bool operator()(T const* const* u, T* r) const {
     std::vector<T> grf, imp;
     try {
-      simulate_model6_t<T>(params_of(u[0], *o, *freedom), o->geometry, w->impact, w->n_grid, &grf, &imp);
+      simulate_model6_t<T>(params_of(u[0], *o, *free_exponent), o->geometry, w->impact, w->n_grid, &grf, &imp);
     } catch (const Error&) {
       return false;
     }
@@ -176,38 +166,38 @@ struct TrialCost {
   }
 };
 
-// TrialCost with its derivatives: the 17 columns (16 parameters, the clock
-// shift) in two passes of 9-wide Jets through the simulation, run on two
+// TrialCost with its derivatives: the 16 columns (15 parameters, the clock
+// shift) in two passes of 8-wide Jets through the simulation, run on two
 // threads (each pass is a whole simulation; the residuals alone are one
 // simulation in doubles).
 class TrialCostFunction : public ceres::CostFunction {
  public:
-  TrialCostFunction(const Window* w, const Model6FitOptions* o, const Freedom* freedom) : cost_{w, o, freedom} {
+  TrialCostFunction(const Window* w, const Model6FitOptions* o, const bool* free_exponent)
+      : cost_{w, o, free_exponent} {
     mutable_parameter_block_sizes()->push_back(kFree);
     mutable_parameter_block_sizes()->push_back(1);
     set_num_residuals(w->n_residuals());
   }
   bool Evaluate(double const* const* p, double* r, double** jac) const override {
     if (!jac) return cost_(p, r);
-    constexpr int W = kJetWidth;
-    using J = ceres::Jet<double, W>;
+    using J = ceres::Jet<double, 8>;
     const int nr = num_residuals();
     bool ok[2] = {false, false};
     auto pass = [&](int k) {
       J u[kFree], shift(p[1][0]);
       for (int i = 0; i < kFree; ++i) {
         u[i] = J(p[0][i]);
-        if (i / W == k) u[i].v[i % W] = 1.0;
+        if (i / 8 == k) u[i].v[i % 8] = 1.0;
       }
-      if (k == 1) shift.v[kFree - W] = 1.0;
+      if (k == 1) shift.v[kFree - 8] = 1.0;
       std::vector<J> out(nr);
       const J* blocks[2] = {u, &shift};
       ok[k] = cost_(blocks, out.data());
       if (!ok[k]) return;
       for (int i = 0; i < nr; ++i) {
         if (k == 0 && r) r[i] = out[i].a;
-        for (int d = 0; d < W; ++d) {
-          const int col = W * k + d;
+        for (int d = 0; d < 8; ++d) {
+          const int col = 8 * k + d;
           if (col < kFree && jac[0]) jac[0][i * kFree + col] = out[i].v[d];
           if (col == kFree && jac[1]) jac[1][i] = out[i].v[d];
         }
@@ -245,10 +235,10 @@ std::vector<const TrialData*> training(const std::vector<TrialData>& trials, con
 
 // Start and bounds (log space): a generic landing-mat foam pair, stresses
 // scaled by the training trials' peak stress (120 kPa for the generic pair).
-void start_and_bounds(double peak_stress_pa, double min_exponent, double* u, double* lo, double* hi) {
+void start_and_bounds(double peak_stress_pa, double* u, double* lo, double* hi) {
   const double s = peak_stress_pa / 1.2e5;
-  const double start[kFree] = {3e3 * s, 6e4 * s, 5e4 * s, 500.0 * s, 0.85, 4e4 * s, 8e5 * s, 1e5 * s, 5e3 * s,
-                               0.5,     2e-3,    0.3,     0.04,      150.0, 1.0,     0.25};
+  const double start[kFree] = {3e3 * s, 6e4 * s, 5e4 * s, 500.0 * s, 0.85, 4e4 * s, 8e5 * s,
+                               1e5 * s, 5e3 * s, 0.5,       2e-3,     0.3,  0.04,    150.0, 1.0};
   for (int i = 0; i < kFree; ++i) {
     u[i] = std::log(start[i]);
     lo[i] = u[i] - std::log(30.0);
@@ -259,8 +249,7 @@ void start_and_bounds(double peak_stress_pa, double min_exponent, double* u, dou
   lo[10] = std::log(5e-4), hi[10] = std::log(1e-2);          // tau_1
   lo[12] = std::log(1e-2), hi[12] = std::log(0.3);           // tau_2
   lo[13] = std::log(1.0), hi[13] = std::log(5e3);            // eta
-  lo[14] = std::log(min_exponent - 1.0), hi[14] = std::log(3.0);  // n in [min_exponent, 4]
-  lo[15] = std::log(0.01), hi[15] = std::log(3.0);           // c in [0.01, 3]
+  lo[14] = std::log(0.3), hi[14] = std::log(3.0);            // n in [1.3, 4]
 }
 
 // The force residual's sum of squares for clock shift `shift`.
@@ -434,12 +423,12 @@ namespace {
 // iterations taken.
 long reprofiled_rounds(ceres::Problem& problem, const ceres::Solver::Options& so, const double* u,
                        std::vector<double>& shifts, const std::vector<Window>& windows,
-                       const Model6FitOptions& options, const Freedom& freedom, ceres::Solver::Summary& summary) {
+                       const Model6FitOptions& options, bool free_exponent, ceres::Solver::Summary& summary) {
   long iterations = 0;
   for (int round = 0; round < options.stage_rounds; ++round) {
     ceres::Solve(so, &problem, &summary);
     iterations += static_cast<long>(summary.iterations.size());
-    const Model6ParamsT<double> p = model6_params_t<double>(to_params(u, options, freedom));
+    const Model6ParamsT<double> p = model6_params_t<double>(to_params(u, options, free_exponent));
     for (size_t k = 0; k < windows.size(); ++k) {
       std::vector<double> grf;
       try {
@@ -460,7 +449,7 @@ long reprofiled_rounds(ceres::Problem& problem, const ceres::Solver::Options& so
 // (the cheaper first-stage end need not lead to the cheaper optimum).
 // Returns the iterations taken; `summary` is the fit's.
 long fit_staged(ceres::Problem& problem, const double* u0, double* u, std::vector<double>& shifts,
-                const std::vector<Window>& windows, const Model6FitOptions& options, const Freedom& freedom,
+                const std::vector<Window>& windows, const Model6FitOptions& options, bool free_exponent,
                 ceres::Solver::Summary& summary) {
   ceres::Solver::Options so;
   so.num_threads = 1;
@@ -476,7 +465,7 @@ long fit_staged(ceres::Problem& problem, const double* u0, double* u, std::vecto
   std::copy(u, u + kFree, held_u);
   std::copy(u0, u0 + kFree, u);
   so.max_num_iterations = options.stage_iterations;
-  iterations += reprofiled_rounds(problem, so, u, shifts, windows, options, freedom, summary);
+  iterations += reprofiled_rounds(problem, so, u, shifts, windows, options, free_exponent, summary);
   for (double& sh : shifts) problem.SetParameterBlockVariable(&sh);
   so.max_num_iterations = options.max_iterations;
   so.function_tolerance = options.function_tolerance;
@@ -511,10 +500,9 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
     peak = std::max(peak, windows.back().peak_n);
   }
   double u[kFree], lo[kFree], hi[kFree];
-  start_and_bounds(peak / options.geometry.area_m2, options.min_densification_exponent, u, lo, hi);
+  start_and_bounds(peak / options.geometry.area_m2, u, lo, hi);
   u[kExponent] = std::clamp(std::log(options.densification_exponent - 1.0), lo[kExponent], hi[kExponent]);
-  u[kShape] = std::clamp(std::log(options.densification_shape_start), lo[kShape], hi[kShape]);
-  Freedom freedom;
+  bool free_exponent = false;
   // The clock shifts start at the contact estimate and are held in a first
   // stage: freed from a generic start, they ran to their bound on the
   // generator's foams (the force matched 3 ms early, the travel 6-8 mm
@@ -526,7 +514,7 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   ceres::Problem problem;
   int n_res = 0;
   for (size_t k = 0; k < windows.size(); ++k) {
-    auto* cf = new TrialCostFunction(&windows[k], &options, &freedom);
+    auto* cf = new TrialCostFunction(&windows[k], &options, &free_exponent);
     n_res += windows[k].n_residuals();
     problem.AddResidualBlock(cf, nullptr, u, &shifts[k]);
     problem.SetParameterLowerBound(&shifts[k], 0, options.contact_shift_min_s);
@@ -549,55 +537,32 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   double u0[kFree];
   std::copy(u, u + kFree, u0);
   ceres::Solver::Summary summary;
-  long iterations = fit_staged(problem, u0, u, shifts, windows, options, freedom, summary);
+  long iterations = fit_staged(problem, u0, u, shifts, windows, options, false, summary);
   double held_u[kFree];
   std::copy(u, u + kFree, held_u);
   const std::vector<double> held_shifts = shifts;
   const ceres::Solver::Summary held_summary = summary;
   const double held_rms = std::sqrt(2.0 * held_summary.final_cost / std::max(1, n_res));
   if (held_rms > options.free_exponent_min_rms) {
-    freedom = {true, false};
-    iterations += fit_staged(problem, u0, u, shifts, windows, options, freedom, summary);
+    free_exponent = true;
+    iterations += fit_staged(problem, u0, u, shifts, windows, options, true, summary);
   }
-  if (freedom.exponent && !(summary.final_cost <= options.free_exponent_cost_ratio * held_summary.final_cost)) {
-    freedom = Freedom{};
+  if (free_exponent && !(summary.final_cost <= options.free_exponent_cost_ratio * held_summary.final_cost)) {
+    free_exponent = false;
     std::copy(held_u, held_u + kFree, u);
     std::copy(held_shifts.begin(), held_shifts.end(), shifts.begin());  // in place: the problem holds their addresses
     summary = held_summary;
   }
-  if (options.free_densification_shape && std::sqrt(2.0 * summary.final_cost / std::max(1, n_res)) > options.free_exponent_min_rms) {
-    double kept_u[kFree];
-    std::copy(u, u + kFree, kept_u);
-    const std::vector<double> kept_shifts = shifts;
-    const ceres::Solver::Summary kept_summary = summary;
-    const Freedom kept = freedom;
-    freedom = {true, true};
-    if (!kept.exponent) u[kExponent] = std::clamp(std::log(options.densification_exponent - 1.0), lo[kExponent], hi[kExponent]);
-    u[kShape] = std::clamp(std::log(options.densification_shape_start), lo[kShape], hi[kShape]);
-    ceres::Solver::Options so;
-    so.num_threads = 1;
-    so.logging_type = ceres::SILENT;
-    so.max_num_iterations = options.max_iterations;
-    so.function_tolerance = options.function_tolerance;
-    ceres::Solve(so, &problem, &summary);
-    iterations += static_cast<long>(summary.iterations.size());
-    if (!(summary.final_cost <= options.free_exponent_cost_ratio * kept_summary.final_cost)) {
-      freedom = kept;
-      std::copy(kept_u, kept_u + kFree, u);
-      std::copy(kept_shifts.begin(), kept_shifts.end(), shifts.begin());
-      summary = kept_summary;
-    }
-  }
 
   Model6FitResult res;
-  res.params = to_params(u, options, freedom);
+  res.params = to_params(u, options, free_exponent);
   for (const TrialData* t : train) res.train_ids.push_back(t->id);
   res.cost = summary.final_cost;
   res.n_residuals = n_res;
   res.iterations = iterations;
   const Eigen::VectorXd log_se = log_standard_errors(problem, summary.final_cost, n_res);
   for (int i = 0; i < kFree; ++i) {
-    if (!freedom.frees(i)) continue;  // held: a fixed number of the law, not an estimate
+    if (i == kExponent && !free_exponent) continue;  // held: a fixed number of the law, not an estimate
     ParameterEstimate e;
     e.name = free_names()[i];
     // n is fitted as log(n - 1).

@@ -78,14 +78,6 @@ struct Model6FitOptions {
   // channels, noise units) exceeds this: a law that already fits the
   // training trial near the noise has no steepness to learn.
   double free_exponent_min_rms = 4.0;
-  double min_densification_exponent = 1.3;
-  // The densification's shape c (the law's term D ((c + r)^n - c^n),
-  // fitting/model6.h; held at 0): when the fit kept so far stays short of
-  // the noise, c and n are freed from it (c started at
-  // densification_shape_start, in [0.01, 3]) and kept at
-  // free_exponent_cost_ratio of its cost or below.
-  bool free_densification_shape = true;
-  double densification_shape_start = 0.25;
 };
 
 struct Model6FitResult {

@@ -19,7 +19,6 @@ namespace dropfit::fitting {
 template <typename T>
 struct FoamLawT {
   T plateau_pa, modulus_pa, hardening_pa, densification_pa, densification_strain, densification_exponent;
-  T densification_shape;
 };
 
 // Model 6's parameters in the simulation's scalar type.
@@ -34,8 +33,7 @@ struct Model6ParamsT {
 template <typename T>
 FoamLawT<T> foam_law_t(const FoamLaw& l) {
   return {T(l.plateau_pa),       T(l.modulus_pa),           T(l.hardening_pa),
-          T(l.densification_pa), T(l.densification_strain), T(l.densification_exponent),
-          T(l.densification_shape)};
+          T(l.densification_pa), T(l.densification_strain), T(l.densification_exponent)};
 }
 
 template <typename T>
@@ -69,12 +67,9 @@ ceres::Jet<S, N> power(const ceres::Jet<S, N>& r, const ceres::Jet<S, N>& n) {
   return n.a == 2.0 ? r * r : pow(r, n.a);
 }
 
-// Elastic stress s and tangent ds of a law at strain e (model6.h): the
-// densification term D ((c + r)^n - c^n), r = e / (e_d - e); c = 0 (held
-// exactly, a constant) is D r^n.
+// Elastic stress s and tangent ds of a law at strain e (model6.h).
 template <typename T>
 void elastic(const FoamLawT<T>& L, const T& e, T* s, T* ds) {
-  using std::pow;
   using std::tanh;
   const T th = tanh(L.modulus_pa * e / L.plateau_pa);
   *s = L.plateau_pa * th + L.hardening_pa * e;
@@ -82,22 +77,13 @@ void elastic(const FoamLawT<T>& L, const T& e, T* s, T* ds) {
   if (!(val(e) > 0.0)) return;
   const T& ed = L.densification_strain;
   const T& n = L.densification_exponent;
-  const T& c = L.densification_shape;
   const T ec = T(0.97) * ed;
   const bool beyond = val(e) > val(ec);
   const T x = beyond ? ec : e;
   const T r = x / (ed - x);
-  T g, dg;  // the term's shape and its derivative in r
-  if (val(c) > 0.0) {
-    const T cr = c + r, p = pow(cr, n);
-    g = p - pow(c, n);
-    dg = n * p / cr;
-  } else {
-    g = power(r, n);
-    dg = n * g / r;
-  }
-  const T slope = L.densification_pa * dg * ed / ((ed - x) * (ed - x));
-  *s += L.densification_pa * g + (beyond ? slope * (e - ec) : T(0.0));
+  const T rn = power(r, n);
+  const T slope = L.densification_pa * n * rn / r * ed / ((ed - x) * (ed - x));
+  *s += L.densification_pa * rn + (beyond ? slope * (e - ec) : T(0.0));
   *ds += slope;
 }
 
@@ -120,7 +106,7 @@ template <typename T>
 bool law_ok(const FoamLawT<T>& l) {
   return val(l.plateau_pa) > 0.0 && val(l.modulus_pa) > 0.0 && val(l.hardening_pa) >= 0.0 &&
          val(l.densification_pa) >= 0.0 && val(l.densification_strain) > 0.0 && val(l.densification_strain) <= 1.0 &&
-         val(l.densification_exponent) >= 1.0 && val(l.densification_shape) >= 0.0;
+         val(l.densification_exponent) >= 1.0;
 }
 
 template <typename T>
@@ -128,7 +114,7 @@ void check(const Model6ParamsT<T>& p) {
   const bool ok = law_ok(p.top) && law_ok(p.base) && val(p.prony_g1) >= 0.0 && val(p.prony_g2) >= 0.0 &&
                   val(p.prony_tau1_s) > 0.0 && val(p.prony_tau2_s) > 0.0 && val(p.viscosity_pa_s) >= 0.0 &&
                   val(p.top_mass_kg) > 0.0 && val(p.base_mass_kg) >= 0.0;
-  require(ok, "model6: a foam law needs positive moduli, plateau and masses, e_d in (0, 1], n >= 1, c >= 0, g >= 0, tau > 0");
+  require(ok, "model6: a foam law needs positive moduli, plateau and masses, e_d in (0, 1], n >= 1, g >= 0, tau > 0");
 }
 
 // A step's start state in scalar S (the column's own, or its values in
@@ -333,8 +319,7 @@ void Column<T>::static_state() {
     for (int j = 0; j < n_; ++j) {
       const FoamLawT<T>& l = law_[j];
       law_d_[j] = {val(l.plateau_pa),       val(l.modulus_pa),           val(l.hardening_pa),
-                   val(l.densification_pa), val(l.densification_strain), val(l.densification_exponent),
-                   val(l.densification_shape)};
+                   val(l.densification_pa), val(l.densification_strain), val(l.densification_exponent)};
     }
     mass_d_.resize(n_), es_d_.resize(n_), ss_d_.resize(n_);
     for (int j = 0; j < n_; ++j) mass_d_[j] = val(mass_[j]), es_d_[j] = val(es_[j]), ss_d_[j] = val(ss_[j]);
