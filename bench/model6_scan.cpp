@@ -121,6 +121,8 @@ Worst scan(const std::string& label, const Session& session, const std::vector<T
     w.z = std::max(w.z, std::abs(z));
   }
   compare_laws(fit, o, data, column);
+  for (const auto& r : fit.reach)
+    if (r.extrapolated) std::printf("  extrapolated: %s (top %.3f, base %.3f)\n", r.id.c_str(), r.max_top_strain, r.max_base_strain);
   if (std::getenv("M6_DUMP"))
     for (const auto& rep : fit.trials) {
       if (!rep.train) continue;
