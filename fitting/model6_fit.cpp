@@ -526,7 +526,7 @@ void check_extrapolation(const std::vector<TrialData>& trials, const Model6FitOp
     r.extrapolated = true;
     const bool b = base_beyond;
     res.warnings.push_back(fmt::format(
-        "trial {} drives the {} foam to {:.2f} strain, beyond the {:.2f} the training trial{} reached: its "
+        "{} drives the {} foam to {:.2f} strain, beyond the {:.2f} the training trial{} reached: its "
         "prediction extrapolates that foam's law past the strains the training data show (a densification the "
         "training impact did not reach is the fit's guess, not a measurement), so its error can exceed the "
         "training fit's",
