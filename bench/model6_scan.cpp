@@ -19,7 +19,8 @@
 // the measured travel's and impact velocity's own errors, and per session
 // the training residual (noise SDs), the fit's time, the strains the fitted
 // column reaches, its elastic laws against the generator's, and the
-// largest held-out errors.
+// largest held-out errors, and the held-out trials the fit flags as
+// extrapolations of a foam's law (fitting/model6_fit.h).
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
