@@ -19,7 +19,8 @@
 // the measured travel's and impact velocity's own errors, and per session
 // the training residual (noise SDs), the fit's time, the strains the fitted
 // column reaches, its elastic laws against the generator's, and the
-// largest held-out errors.
+// largest held-out errors, and the held-out trials the fit flags as
+// extrapolations of a foam's law (fitting/model6_fit.h).
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
@@ -121,6 +122,8 @@ Worst scan(const std::string& label, const Session& session, const std::vector<T
     w.z = std::max(w.z, std::abs(z));
   }
   compare_laws(fit, o, data, column);
+  for (const auto& r : fit.reach)
+    if (r.extrapolated) std::printf("  extrapolated: %s (top %.3f, base %.3f)\n", r.id.c_str(), r.max_top_strain, r.max_base_strain);
   if (std::getenv("M6_DUMP"))
     for (const auto& rep : fit.trials) {
       if (!rep.train) continue;

@@ -487,6 +487,54 @@ long fit_staged(ceres::Problem& problem, const double* u0, double* u, std::vecto
   return iterations;
 }
 
+// The largest strains of the top and bottom elements over the trial's
+// contact window in the column `params`.
+Model6Reach column_reach(const TrialData& trial, const Model6Params& params, const Model6FitOptions& options) {
+  const Window w = window_of(trial, options);
+  Model6Extras ex;
+  simulate_model6_t<double>(model6_params_t<double>(params), options.geometry, w.impact, w.n_grid, nullptr, nullptr,
+                            &ex);
+  Model6Reach r;
+  r.id = trial.id;
+  for (double e : ex.top_strain) r.max_top_strain = std::max(r.max_top_strain, e);
+  for (double e : ex.base_strain) r.max_base_strain = std::max(r.max_base_strain, e);
+  return r;
+}
+
+// Each trial's reach (res.reach) and a warning for each held-out trial that
+// drives a foam beyond the training trials' reach by more than
+// extrapolation_ratio in r = e / (e_d - e).
+void check_extrapolation(const std::vector<TrialData>& trials, const Model6FitOptions& options,
+                         Model6FitResult& res) {
+  double top = 0.0, base = 0.0;
+  for (const TrialData& t : trials) {
+    Model6Reach r = column_reach(t, res.params, options);
+    r.train = std::find(res.train_ids.begin(), res.train_ids.end(), t.id) != res.train_ids.end();
+    if (r.train) top = std::max(top, r.max_top_strain), base = std::max(base, r.max_base_strain);
+    res.reach.push_back(r);
+  }
+  auto deeper = [&](double e, double e_train, const FoamLaw& law) {
+    const double ed = law.densification_strain;
+    const double r = e / std::max(ed - e, 1e-3), r_train = e_train / std::max(ed - e_train, 1e-3);
+    return r > options.extrapolation_ratio * r_train;
+  };
+  for (Model6Reach& r : res.reach) {
+    if (r.train) continue;
+    const bool top_beyond = deeper(r.max_top_strain, top, res.params.top);
+    const bool base_beyond = deeper(r.max_base_strain, base, res.params.base);
+    if (!top_beyond && !base_beyond) continue;
+    r.extrapolated = true;
+    const bool b = base_beyond;
+    res.warnings.push_back(fmt::format(
+        "{} drives the {} foam to {:.2f} strain, beyond the {:.2f} the training trial{} reached: its "
+        "prediction extrapolates that foam's law past the strains the training data show (a densification the "
+        "training impact did not reach is the fit's guess, not a measurement), so its error can exceed the "
+        "training fit's",
+        r.id, b ? "base" : "top", b ? r.max_base_strain : r.max_top_strain, b ? base : top,
+        res.train_ids.size() > 1 ? "s" : ""));
+  }
+}
+
 }  // namespace
 
 Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6FitOptions& options) {
@@ -596,6 +644,7 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
     rep.train = std::find(res.train_ids.begin(), res.train_ids.end(), t.id) != res.train_ids.end();
     res.trials.push_back(std::move(rep));
   }
+  check_extrapolation(trials, options, res);
   res.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return res;
 }

@@ -78,6 +78,27 @@ struct Model6FitOptions {
   // channels, noise units) exceeds this: a law that already fits the
   // training trial near the noise has no steepness to learn.
   double free_exponent_min_rms = 4.0;
+  // A held-out trial is predicted by extrapolating a foam's law
+  // (Model6FitResult::warnings) when its fitted column drives that foam
+  // deeper than the training trials by more than this ratio in the law's
+  // densification coordinate r = e / (e_d - e) (the strain over the
+  // compressibility left; the densification term goes as r^n): far below
+  // e_d that is about the strain's ratio, near e_d a few hundredths of
+  // strain more.
+  double extrapolation_ratio = 1.5;
+};
+
+// How far a trial drives each foam in the fitted column: the largest
+// compressive strain of the top element and of the bottom one over the
+// trial's contact window.
+struct Model6Reach {
+  std::string id;
+  bool train = false;
+  double max_top_strain = 0.0, max_base_strain = 0.0;
+  // A held-out trial beyond the training trials' reach in either foam by
+  // more than extrapolation_ratio: the law there is the fit's
+  // extrapolation, not something the training data showed.
+  bool extrapolated = false;
 };
 
 struct Model6FitResult {
@@ -88,6 +109,10 @@ struct Model6FitResult {
   // variance when above the noise (delta method from the logarithms).
   std::vector<ParameterEstimate> estimates;
   std::vector<TrialReport> trials;           // every trial predicted (train: its fitted dt_c)
+  std::vector<Model6Reach> reach;            // every trial's, in the order of trials
+  // One per extrapolated trial: which foam it drives how far beyond the
+  // training reach (its prediction's error can exceed the training fit's).
+  std::vector<std::string> warnings;
   double cost = 0.0;                         // 0.5 x sum of squared residuals (noise units)
   int n_residuals = 0;
   double force_rms_sigma = 0.0, impactor_rms_sigma = 0.0;  // training residual RMS per channel

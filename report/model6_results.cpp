@@ -45,6 +45,7 @@ fitting::FitResult model6_as_fit(const fitting::Model6FitResult& fit) {
   shared.cost = fit.cost;
   shared.n_residuals = fit.n_residuals;
   shared.seconds = fit.seconds;
+  shared.warnings = fit.warnings;
   shared.optimizer = "ceres Levenberg-Marquardt, exact derivatives (Jets through the implicit integrator)";
   shared.evaluations = fit.iterations;
   shared.channels = {{"force", 0, 0.0, fit.force_rms_sigma, 0.0, fit.force_rms_sigma > 2.0},
@@ -72,6 +73,17 @@ std::string model6_fit_json(const fitting::Model6FitResult& fit, const fitting::
   doc.erase("identifiable");
   doc.erase("evaluations");
   doc["iterations"] = fit.iterations;
+  // How far each trial drives each foam, and whether its prediction
+  // extrapolates a foam's law beyond the training trials' reach.
+  nlohmann::ordered_json reach = nlohmann::ordered_json::array();
+  for (const auto& r : fit.reach)
+    reach.push_back({{"id", r.id},
+                     {"train", r.train},
+                     {"max_top_strain", r.max_top_strain},
+                     {"max_base_strain", r.max_base_strain},
+                     {"extrapolated", r.extrapolated}});
+  doc["strain_reach"] = reach;
+  doc["strain_reach_ratio"] = options.extrapolation_ratio;
   doc["choice"] = {{"against", choice.rival},
                    {"chosen", choice.chosen},
                    {"evidence", choice.evidence},

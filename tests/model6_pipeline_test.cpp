@@ -116,6 +116,22 @@ void check_model6_final(const fs::path& dir, const Tolerance& tol) {
   EXPECT_NE(html.find("The held-out residual's form"), std::string::npos);
   EXPECT_NE(html.find("Held-out residual against deflection (mm)"), std::string::npos);
   EXPECT_NE(html.find("Held-out residual against time since contact (ms)"), std::string::npos);
+
+  // Each trial's strain reach in the fitted column; a held-out trial that
+  // drives a foam beyond the training trial's reach is a warning in fit.json
+  // and in the report.
+  ASSERT_EQ(fj["strain_reach"].size(), state.model6->fit->trials.size());
+  for (const auto& r : fj["strain_reach"]) {
+    EXPECT_GT(r["max_top_strain"].get<double>(), 0.3);
+    EXPECT_LT(r["max_top_strain"].get<double>(), 0.95);
+    if (!r["extrapolated"].get<bool>()) continue;
+    EXPECT_FALSE(r["train"].get<bool>());
+    const std::string head = r["id"].get<std::string>() + " drives the";
+    bool warned = false;
+    for (const auto& w : fj["warnings"]) warned = warned || w.get<std::string>().find(head) != std::string::npos;
+    EXPECT_TRUE(warned) << head;
+    EXPECT_NE(html.find(head), std::string::npos) << head;
+  }
 }
 
 void check_not_triggered(const fs::path& dir) {
