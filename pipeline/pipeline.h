@@ -80,7 +80,7 @@ struct BuildOptions {
                                             fitting::ModelKind::Model5};
   int threads = 1;            // fits in parallel
   double max_tilt_deg = 0.0;  // > 0: reject trials tilting more (else the trial stage's default)
-  std::function<void(const std::string&)> say;  // progress (may be empty)
+  std::function<void(const std::string&)> say = {};  // progress (may be empty)
 };
 
 // Reads the session folder and builds it up to `options.upto`. Throws
