@@ -35,6 +35,7 @@
 // against the whole window's: a force shape the column misses pulls them
 // apart by about what it biases the shift). The
 // derivatives: two 8-wide Jet passes on two threads.
+#include <atomic>
 #include <string>
 #include <vector>
 
@@ -78,6 +79,9 @@ struct Model6FitOptions {
   // channels, noise units) exceeds this: a law that already fits the
   // training trial near the noise has no steepness to learn.
   double free_exponent_min_rms = 4.0;
+  // Set (by another thread) to stop the fit: fit_model6 then throws Error
+  // after the solver iteration under way. Null: runs to the end.
+  const std::atomic<bool>* cancel = nullptr;
 };
 
 struct Model6FitResult {
