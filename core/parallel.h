@@ -7,11 +7,11 @@
 //
 // The helper threads are kept and reused (a process-wide pool that grows to
 // the most helpers ever asked for at once): a fit asks for a helper on
-// every Jacobian of a lone Levenberg-Marquardt run, and a new thread per
-// call cost about 50 us of CPU (kernel) and a wake-up's latency each, some
-// 3000 times in a five-trial run. Every call gets all the helpers it asks
-// for (idle ones, else new ones), so nested loops run exactly as with
-// threads of their own and cannot wait on each other.
+// every Jacobian of a lone Levenberg-Marquardt run, thousands of times in a
+// run, and starting a thread each time cost kernel time and a wake-up's
+// latency (BENCHMARKS.md). Every call gets all the helpers it asks for
+// (idle ones, else new ones), so nested loops run exactly as with threads
+// of their own and cannot wait on each other.
 #include <algorithm>
 #include <cstddef>
 #include <type_traits>

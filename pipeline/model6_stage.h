@@ -57,10 +57,10 @@ bool final_model_short_of_noise(const SessionState& state);
 // The loop's mat stage calls back after each round that named an effect;
 // when the model it goes on from still leaves more than
 // kEarlyModel6NoiseSd noise SDs on a channel, the lumped chains rarely
-// reach the noise (on the continuum sessions the model after stiffening
-// stays at 80-140 noise SDs of force, on lumped-chain ones it falls to about
-// 1.5), so Model 6 is started then on the data and training trial it would
-// be fitted on after the loop. consider_model6 takes that fit only when its
+// reach the noise (a named effect brings a lumped-chain mat to the noise;
+// on a foam column the model stays far above it: docs/models.md has the
+// measured errors), so Model 6 is started then on the data and training
+// trial it would be fitted on after the loop. consider_model6 takes that fit only when its
 // inputs are exactly those it would fit on (the same trials, values and
 // training trial: the fit is deterministic, so the result is the one it
 // would get); otherwise, and when Model 6 is not needed, the early fit is
