@@ -452,6 +452,10 @@ DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& optio
           "mat: effects of one mat (stiffening, hysteresis, rate dependence, layer mass) not judged: the mat changes "
           "between trials, so no single set of parameters describes them all");
     } else if (!data.empty()) {
+      if (options.after_mat_round)
+        mo.after_round = [&](const fitting::FitResult& current, double force_sd, double impactor_sd) {
+          options.after_mat_round(current, force_sd, impactor_sd, correction);
+        };
       const MatDiagnosis md = diagnose_mat(data, mo);
       const std::optional<LowpassDiagnosis> lowpass =
           force_channel_and_sync(state, options, data, md, mo.unexplained_noise_sd, sync_results, correction, sync);

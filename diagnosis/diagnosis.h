@@ -424,6 +424,11 @@ struct MatStageOptions {
   int pairs = 1;
   double wald_sd = 3.0;  // an effect's parameter must stand this many SEs from "absent"
   int threads = 2;       // candidate refits in parallel
+  // Called after each round that named an effect, with the model the next
+  // round starts from and its held-out RMS per channel (noise SDs). The
+  // stage's results do not depend on it: the pipeline starts work that
+  // waits on the loop's verdict (Model 6) early with it.
+  std::function<void(const fitting::FitResult& current, double force_sd, double impactor_sd)> after_round;
 };
 
 struct MatDiagnosis {
@@ -644,6 +649,11 @@ struct DiagnosisOptions {
   ForceplateStageOptions forceplate_stage;  // impactor mass and gravity taken from the state
   MatStageOptions mat_stage;                // fit options: the state's baseline unless mat_stage_fit_set
   bool mat_stage_fit_set = false;           // true: mat_stage.fit as given (tests)
+  // As MatStageOptions::after_round, with the plate correction the mat
+  // stage's data carry (the force stage's, applied before the mat stage).
+  std::function<void(const fitting::FitResult& current, double force_sd, double impactor_sd,
+                     const PlateCorrection& correction)>
+      after_mat_round;
 };
 
 // The loop on a session state: the calibration stage's decision (already

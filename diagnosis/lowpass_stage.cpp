@@ -5,12 +5,14 @@
 #include <Eigen/QR>
 #include <algorithm>
 #include <cmath>
+#include <exception>
 #include <limits>
 #include <numbers>
 #include <string>
 #include <utility>
 #include <vector>
 
+#include "core/parallel.h"
 #include "diagnosis/diagnosis.h"
 #include "diagnosis/internal.h"
 #include "fitting/force_lowpass.h"
@@ -79,15 +81,30 @@ Eigen::VectorXd stacked_residuals(const std::vector<fitting::TrialData>& acc, co
 
 // The residuals at p and their derivatives along the free parameters (per
 // step), each trial's clock shift profiled at every point (forward
-// differences: the profiled shift moves with the parameters).
+// differences: the profiled shift moves with the parameters). The points
+// are independent: they run on the fitter's threads (o.threads; one for a
+// custom simulator, which need not be thread-safe); a failure is rethrown
+// as the first failing point's, in order.
 std::pair<Eigen::VectorXd, Eigen::MatrixXd> linearised(const std::vector<fitting::TrialData>& acc,
                                                        const fitting::MatParams& p, const fitting::FitOptions& o,
                                                        const std::vector<FreeParameter>& free,
                                                        std::vector<Eigen::Index>* offsets) {
-  const Eigen::VectorXd r = stacked_residuals(acc, p, o, offsets);
+  // Point 0 is p itself, point c + 1 p moved along free[c].
+  std::vector<Eigen::VectorXd> points(free.size() + 1);
+  std::vector<std::exception_ptr> failures(points.size());
+  parallel_for(points.size(), o.simulator ? 1 : o.threads, [&](std::size_t k) {
+    try {
+      points[k] = k == 0 ? stacked_residuals(acc, p, o, offsets)
+                         : stacked_residuals(acc, moved(p, free[k - 1], free[k - 1].step), o);
+    } catch (...) {
+      failures[k] = std::current_exception();
+    }
+  });
+  for (const auto& f : failures)
+    if (f) std::rethrow_exception(f);
+  const Eigen::VectorXd& r = points[0];
   Eigen::MatrixXd j(r.size(), static_cast<Eigen::Index>(free.size()));
-  for (std::size_t c = 0; c < free.size(); ++c)
-    j.col(static_cast<Eigen::Index>(c)) = stacked_residuals(acc, moved(p, free[c], free[c].step), o) - r;
+  for (std::size_t c = 0; c < free.size(); ++c) j.col(static_cast<Eigen::Index>(c)) = points[c + 1] - r;
   return {r, j};
 }
 

@@ -666,6 +666,7 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
     current_options.every_ordering = base.every_ordering;
     current_options.threads = base.threads;
     before = kept.errors;
+    if (options.after_round) options.after_round(current, before.mean_force_sd(), before.mean_impactor_sd());
   }
 
   drop_redundant(acc, named, current, current_options, before, options, base.m1_kg, out);

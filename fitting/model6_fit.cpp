@@ -9,9 +9,9 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
-#include <thread>
 
 #include "core/error.h"
+#include "core/parallel.h"
 #include "fitting/model6_impl.h"
 
 namespace dropfit::fitting {
@@ -203,9 +203,7 @@ class TrialCostFunction : public ceres::CostFunction {
         }
       }
     };
-    std::thread second(pass, 1);
-    pass(0);
-    second.join();
+    parallel_for(2, 2, [&](std::size_t k) { pass(static_cast<int>(k)); });
     return ok[0] && ok[1];
   }
 
@@ -418,6 +416,22 @@ TrialReport predict_model6(const TrialData& trial, const Model6Params& params, c
 
 namespace {
 
+// Stops a solve once options.cancel is set (fit_model6 then throws).
+class CancelCallback : public ceres::IterationCallback {
+ public:
+  explicit CancelCallback(const std::atomic<bool>* cancel) : cancel_(cancel) {}
+  ceres::CallbackReturnType operator()(const ceres::IterationSummary&) override {
+    return cancel_ && cancel_->load() ? ceres::SOLVER_ABORT : ceres::SOLVER_CONTINUE;
+  }
+
+ private:
+  const std::atomic<bool>* cancel_;
+};
+
+void throw_if_cancelled(const Model6FitOptions& options) {
+  if (options.cancel && options.cancel->load()) throw Error("fit_model6: cancelled");
+}
+
 // The first stage with the clock shifts held within each round and each
 // re-profiled for the current parameters between rounds; returns the
 // iterations taken.
@@ -454,6 +468,8 @@ long fit_staged(ceres::Problem& problem, const double* u0, double* u, std::vecto
   ceres::Solver::Options so;
   so.num_threads = 1;
   so.logging_type = ceres::SILENT;
+  CancelCallback cancel(options.cancel);
+  if (options.cancel) so.callbacks.push_back(&cancel);
   std::copy(u0, u0 + kFree, u);
   std::fill(shifts.begin(), shifts.end(), 0.0);
   for (double& sh : shifts) problem.SetParameterBlockConstant(&sh);
@@ -586,6 +602,7 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   std::copy(u, u + kFree, u0);
   ceres::Solver::Summary summary;
   long iterations = fit_staged(problem, u0, u, shifts, windows, options, false, summary);
+  throw_if_cancelled(options);
   double held_u[kFree];
   std::copy(u, u + kFree, held_u);
   const std::vector<double> held_shifts = shifts;
@@ -594,6 +611,7 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   if (held_rms > options.free_exponent_min_rms) {
     free_exponent = true;
     iterations += fit_staged(problem, u0, u, shifts, windows, options, true, summary);
+    throw_if_cancelled(options);
   }
   if (free_exponent && !(summary.final_cost <= options.free_exponent_cost_ratio * held_summary.final_cost)) {
     free_exponent = false;

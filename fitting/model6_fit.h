@@ -35,6 +35,7 @@
 // against the whole window's: a force shape the column misses pulls them
 // apart by about what it biases the shift). The
 // derivatives: two 8-wide Jet passes on two threads.
+#include <atomic>
 #include <string>
 #include <vector>
 
@@ -86,6 +87,9 @@ struct Model6FitOptions {
   // e_d that is about the strain's ratio, near e_d a few hundredths of
   // strain more.
   double extrapolation_ratio = 1.5;
+  // Set (by another thread) to stop the fit: fit_model6 then throws Error
+  // after the solver iteration under way. Null: runs to the end.
+  const std::atomic<bool>* cancel = nullptr;
 };
 
 // How far a trial drives each foam in the fitted column: the largest

@@ -5,6 +5,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+
+#include "core/error.h"
 
 #include "pipeline/pipeline.h"
 
@@ -39,7 +42,84 @@ bool final_model_short_of_noise(const SessionState& state) {
   return false;
 }
 
-void consider_model6(SessionState& state) {
+namespace {
+
+// The accepted trials only: a rejected trial may have no force to predict.
+std::vector<fitting::TrialData> accepted_data(const std::vector<fitting::TrialData>& all) {
+  std::vector<fitting::TrialData> data;
+  for (const auto& d : all)
+    if (d.accepted) data.push_back(d);
+  return data;
+}
+
+// Bit for bit (NaN equal to NaN): the early fit is taken only on the very
+// numbers the fit after the loop would see.
+bool same_bits(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
+bool same_bits(const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
+  return a.size() == b.size() &&
+         (a.size() == 0 || std::memcmp(a.data(), b.data(), sizeof(double) * static_cast<std::size_t>(a.size())) == 0);
+}
+bool same_trial(const fitting::TrialData& a, const fitting::TrialData& b) {
+  return a.id == b.id && a.accepted == b.accepted && same_bits(a.impact_velocity_m_s, b.impact_velocity_m_s) &&
+         same_bits(a.impactor_mass_kg, b.impactor_mass_kg) && same_bits(a.gravity_m_s2, b.gravity_m_s2) &&
+         same_bits(a.t_s, b.t_s) && same_bits(a.grf_n, b.grf_n) && same_bits(a.impactor_m, b.impactor_m) &&
+         same_bits(a.surface_m, b.surface_m) && same_bits(a.force_noise_n, b.force_noise_n) &&
+         same_bits(a.marker_noise_m, b.marker_noise_m) && same_bits(a.impact_velocity_se_m_s, b.impact_velocity_se_m_s) &&
+         same_bits(a.contact_time_se_s, b.contact_time_se_s) &&
+         same_bits(a.velocity_contact_time_cov, b.velocity_contact_time_cov) &&
+         same_bits(a.travel_reference_se_m, b.travel_reference_se_m) &&
+         same_bits(a.calibration_scale_sd, b.calibration_scale_sd);
+}
+
+}  // namespace
+
+EarlyModel6::~EarlyModel6() { stop(); }
+
+void EarlyModel6::stop() {
+  cancel_ = true;
+  if (thread_.joinable()) thread_.join();
+}
+
+void EarlyModel6::start(std::vector<fitting::TrialData> data, fitting::Model6FitOptions options) {
+  stop();
+  cancel_ = false;
+  fit_.reset();
+  error_.clear();
+  data_ = std::move(data);
+  options_ = std::move(options);
+  options_.cancel = &cancel_;
+  thread_ = std::thread([this] {
+    try {
+      fit_ = fitting::fit_model6(data_, options_);
+    } catch (const std::exception& e) {
+      error_ = e.what();
+      if (error_.empty()) error_ = "fit_model6 failed";
+    }
+  });
+}
+
+std::optional<fitting::Model6FitResult> EarlyModel6::take(const std::vector<fitting::TrialData>& data,
+                                                          const fitting::Model6FitOptions& options) {
+  const bool same = started() && options.train_ids == options_.train_ids && data.size() == data_.size() &&
+                    std::equal(data.begin(), data.end(), data_.begin(), same_trial);
+  if (!same) {
+    stop();
+    return std::nullopt;
+  }
+  thread_.join();
+  if (!error_.empty()) throw Error(error_);
+  return std::move(fit_);
+}
+
+void start_model6_early(const SessionState& state, EarlyModel6& early, const fitting::FitResult& current,
+                        double force_sd, double impactor_sd, const diagnosis::PlateCorrection& correction) {
+  if (early.started() || !(std::max(force_sd, impactor_sd) > kEarlyModel6NoiseSd)) return;
+  fitting::Model6FitOptions options = model6_options(state.session.manifest);
+  options.train_ids = current.train_ids;
+  early.start(accepted_data(corrected_fit_data(state, correction)), std::move(options));
+}
+
+void consider_model6(SessionState& state, EarlyModel6* early) {
   state.model6.reset();
   if (!final_model_short_of_noise(state)) return;
   Model6Stage stage;
@@ -47,12 +127,11 @@ void consider_model6(SessionState& state) {
   stage.rival = state.final_label();
   stage.options = model6_options(state.session.manifest);
   stage.options.train_ids = rival.train_ids;
-  // The accepted trials only: a rejected trial may have no force to predict.
-  std::vector<fitting::TrialData> data;
-  for (const auto& d : state.fit_data)
-    if (d.accepted) data.push_back(d);
+  const std::vector<fitting::TrialData> data = accepted_data(state.fit_data);
   try {
-    stage.fit = fitting::fit_model6(data, stage.options);
+    std::optional<fitting::Model6FitResult> fit;
+    if (early) fit = early->take(data, stage.options);
+    stage.fit = fit ? std::move(*fit) : fitting::fit_model6(data, stage.options);
     stage.fitted = true;
   } catch (const std::exception& e) {
     stage.reason = fmt::format("Model 6 (the foam column) fit failed: {}; {} stays the final model", e.what(),

@@ -13,9 +13,12 @@
 // verdict are judged again on its contacts.
 //
 // Plain data and numerics only; outputs.h writes it.
+#include <atomic>
 #include <limits>
 #include <optional>
 #include <string>
+#include <thread>
+#include <vector>
 
 #include "capture/session.h"
 #include "diagnosis/diagnosis.h"
@@ -50,9 +53,59 @@ fitting::Model6FitOptions model6_options(const Manifest& manifest);
 // noise (the final lumped model does not reach the noise).
 bool final_model_short_of_noise(const SessionState& state);
 
+// Model 6 fitted on a thread of its own beside the loop's later rounds.
+// The loop's mat stage calls back after each round that named an effect;
+// when the model it goes on from still leaves more than
+// kEarlyModel6NoiseSd noise SDs on a channel, the lumped chains rarely
+// reach the noise (a named effect brings a lumped-chain mat to the noise;
+// on a foam column the model stays far above it: docs/models.md has the
+// measured errors), so Model 6 is started then on the data and training
+// trial it would be fitted on after the loop. consider_model6 takes that fit only when its
+// inputs are exactly those it would fit on (the same trials, values and
+// training trial: the fit is deterministic, so the result is the one it
+// would get); otherwise, and when Model 6 is not needed, the early fit is
+// cancelled. Only the time changes: on two cores Model 6's single-threaded
+// stretches overlap the loop's refits.
+inline constexpr double kEarlyModel6NoiseSd = 10.0;
+
+class EarlyModel6 {
+ public:
+  EarlyModel6() = default;
+  EarlyModel6(const EarlyModel6&) = delete;
+  EarlyModel6& operator=(const EarlyModel6&) = delete;
+  ~EarlyModel6();  // cancels a fit still running and waits for it
+
+  bool started() const { return thread_.joinable(); }
+  // Starts fit_model6(data, options) on a thread of its own.
+  void start(std::vector<fitting::TrialData> data, fitting::Model6FitOptions options);
+  // The fit when it was started on exactly `data` and `options.train_ids`
+  // (waits for it; rethrows its failure as fit_model6 would have thrown
+  // it); empty otherwise (a fit running is cancelled).
+  std::optional<fitting::Model6FitResult> take(const std::vector<fitting::TrialData>& data,
+                                               const fitting::Model6FitOptions& options);
+
+ private:
+  void stop();
+  std::vector<fitting::TrialData> data_;
+  fitting::Model6FitOptions options_;
+  std::atomic<bool> cancel_{false};
+  std::thread thread_;
+  std::optional<fitting::Model6FitResult> fit_;
+  std::string error_;
+};
+
+// The mat stage's callback (diagnosis::DiagnosisOptions::after_mat_round):
+// starts `early` on the fit data the pipeline will hold after the loop
+// (with the plate correction the mat stage's data carry) and the training
+// trial of `current`, when a channel stays above kEarlyModel6NoiseSd.
+void start_model6_early(const SessionState& state, EarlyModel6& early, const fitting::FitResult& current,
+                        double force_sd, double impactor_sd, const diagnosis::PlateCorrection& correction);
+
 // Fits Model 6 when the final lumped model does not reach the noise and
 // judges it against that model (state.model6); a failed fit is a note.
-void consider_model6(SessionState& state);
+// An early fit on the same inputs (`early`) is taken instead of fitting
+// again.
+void consider_model6(SessionState& state, EarlyModel6* early = nullptr);
 
 // With Model 6 chosen: each trial's clock offset from the contact Model 6
 // places on the force clock (the onset estimate kept beside it), its SE

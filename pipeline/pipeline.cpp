@@ -243,9 +243,18 @@ void fit_models(SessionState& state, const std::vector<fitting::ModelKind>& mode
 void close_loop(SessionState& state) {
   require(state, Stage::Fits, "closing the loop");
   state.reached = Stage::Loop;
+  // Model 6 fitted beside the loop's later rounds when the lumped model
+  // stays far from the noise (model6_stage.h); cancelled on leaving here
+  // when not used.
+  EarlyModel6 early;
   if (state.accepted() > 0) {
     try {
-      state.loop = diagnosis::diagnose(state);
+      diagnosis::DiagnosisOptions options;
+      options.after_mat_round = [&](const fitting::FitResult& current, double force_sd, double impactor_sd,
+                                    const diagnosis::PlateCorrection& correction) {
+        start_model6_early(state, early, current, force_sd, impactor_sd, correction);
+      };
+      state.loop = diagnosis::diagnose(state, options);
       for (const auto& stage : state.loop->not_assessed)
         state.notes.push_back(fmt::format("closing the loop: {} not assessed: upstream unresolved", stage));
     } catch (const std::exception& e) {
@@ -262,7 +271,7 @@ void close_loop(SessionState& state) {
   // stiffness (before Model 6 is judged against the final lumped model).
   predict_changing_mat(state);
   // A final lumped model short of the noise: Model 6 may replace it.
-  consider_model6(state);
+  consider_model6(state, &early);
   // Each trial's clock offset from the contact instant the final mat model
   // placed on the force clock, replacing the plate-onset estimate, which
   // reads late on a layered mat.
@@ -374,27 +383,52 @@ void map_final_residuals(SessionState& state) {
     maps.emplace_back("model6", diagnosis::map_residual(state.fit_data, state.model6->fit->trials));
 }
 
+namespace {
+
+// What apply_plate_correction says it removed.
+std::string correction_text(const diagnosis::PlateCorrection& correction) {
+  return correction.drift
+             ? fmt::format("plate gain {:.4g} and baseline drift {:.3g} N/s removed by closing the loop",
+                           correction.gain, correction.drift_n_s)
+             : fmt::format("plate gain {:.4g} removed by closing the loop", correction.gain);
+}
+
+// One trial's result with the plate's gain and drift taken out; false
+// when it has no force series to correct.
+bool correct_trial(trial::TrialResult& r, const diagnosis::PlateCorrection& correction) {
+  if (!std::isfinite(r.contact_time_s) || r.series.t_s.size() == 0) return false;
+  r.series.fz_n = correction.apply(r.series.t_s, r.series.fz_n, r.contact_time_s);
+  r.peak_force_uncorrected_n = r.peak_force_n;
+  if (std::isfinite(r.time_to_peak_s)) {
+    const Eigen::VectorXd at = Eigen::VectorXd::Constant(1, r.contact_time_s + r.time_to_peak_s);
+    r.peak_force_n = correction.apply(at, Eigen::VectorXd::Constant(1, r.peak_force_n), r.contact_time_s)[0];
+  } else {
+    r.peak_force_n /= correction.gain;
+  }
+  r.force_noise_n /= correction.gain;
+  r.force_correction = correction_text(correction);
+  return true;
+}
+
+}  // namespace
+
+std::vector<fitting::TrialData> corrected_fit_data(const SessionState& state,
+                                                   const diagnosis::PlateCorrection& correction) {
+  std::vector<fitting::TrialData> data = state.fit_data;
+  if (!correction.drift && correction.gain == 1.0) return data;
+  for (std::size_t i = 0; i < state.trials.size() && i < data.size(); ++i) {
+    trial::TrialResult r = state.trials[i].result;
+    if (correct_trial(r, correction)) data[i] = fitting_trial(state.session.manifest, r);
+  }
+  return data;
+}
+
 void apply_plate_correction(SessionState& state, const diagnosis::PlateCorrection& correction) {
   if (!correction.drift && correction.gain == 1.0) return;
-  const std::string what =
-      correction.drift
-          ? fmt::format("plate gain {:.4g} and baseline drift {:.3g} N/s removed by closing the loop", correction.gain,
-                        correction.drift_n_s)
-          : fmt::format("plate gain {:.4g} removed by closing the loop", correction.gain);
+  const std::string what = correction_text(correction);
   for (std::size_t i = 0; i < state.trials.size(); ++i) {
     trial::TrialResult& r = state.trials[i].result;
-    if (!std::isfinite(r.contact_time_s) || r.series.t_s.size() == 0) continue;
-    r.series.fz_n = correction.apply(r.series.t_s, r.series.fz_n, r.contact_time_s);
-    r.peak_force_uncorrected_n = r.peak_force_n;
-    if (std::isfinite(r.time_to_peak_s)) {
-      const Eigen::VectorXd at = Eigen::VectorXd::Constant(1, r.contact_time_s + r.time_to_peak_s);
-      r.peak_force_n = correction.apply(at, Eigen::VectorXd::Constant(1, r.peak_force_n), r.contact_time_s)[0];
-    } else {
-      r.peak_force_n /= correction.gain;
-    }
-    r.force_noise_n /= correction.gain;
-    r.force_correction = what;
-    state.fit_data[i] = fitting_trial(state.session.manifest, r);
+    if (correct_trial(r, correction)) state.fit_data[i] = fitting_trial(state.session.manifest, r);
   }
   state.notes.push_back("every trial's force and every fit: " + what);
   // The fits made before the loop stood on the plate's reading: refitted.

@@ -125,6 +125,11 @@ void map_final_residuals(SessionState& state);
 // models asked on it. Nothing happens for the identity correction.
 void apply_plate_correction(SessionState& state, const diagnosis::PlateCorrection& correction);
 
+// The fit data as apply_plate_correction leaves them (every trial, in the
+// state's order), without changing the state.
+std::vector<fitting::TrialData> corrected_fit_data(const SessionState& state,
+                                                   const diagnosis::PlateCorrection& correction);
+
 // The fitter's options for `model` with the manifest's layer masses (top =
 // every layer above the last, bottom = the last) and Model 5's geometry.
 fitting::FitOptions fit_options(const Manifest& manifest, fitting::ModelKind model);

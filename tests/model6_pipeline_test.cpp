@@ -17,10 +17,13 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <atomic>
 #include <cstdio>
 #include <fstream>
 #include <string>
 
+#include "core/error.h"
+#include "pipeline/model6_stage.h"
 #include "pipeline/outputs.h"
 #include "pipeline/pipeline.h"
 #include "report/output.h"
@@ -139,6 +142,53 @@ void check_not_triggered(const fs::path& dir) {
   const pipeline::SessionState state = pipeline::build((dir / "session").string());
   EXPECT_FALSE(state.model6.has_value()) << state.model6->reason;
   EXPECT_NE(state.final_label(), "model6");
+}
+
+// Model 6 fitted early beside the loop (pipeline/model6_stage.h: EarlyModel6)
+// is taken only on exactly the inputs the fit after the loop would use, and
+// is then that fit to the last bit; on other inputs it is cancelled and not
+// taken; a cancelled fit throws instead of returning.
+TEST(Model6Pipeline, EarlyFitIsTheFitAfterTheLoopOrNone) {
+  const fs::path dir = shared_path("validation-continuum") / "c1-foam";
+  DROPFIT_NEED_SHARED(dir);
+  pipeline::BuildOptions bo;
+  bo.upto = pipeline::Stage::Trials;
+  const pipeline::SessionState state = pipeline::build((dir / "session").string(), bo);
+  std::vector<fitting::TrialData> data;
+  for (const auto& d : state.fit_data)
+    if (d.accepted) data.push_back(d);
+  ASSERT_GE(data.size(), 3u);
+  fitting::Model6FitOptions options = pipeline::model6_options(state.session.manifest);
+  options.train_ids = {data[1].id};
+
+  const fitting::Model6FitResult direct = fitting::fit_model6(data, options);
+  pipeline::EarlyModel6 early;
+  early.start(data, options);
+  const std::optional<fitting::Model6FitResult> taken = early.take(data, options);
+  ASSERT_TRUE(taken.has_value());
+  EXPECT_EQ(taken->cost, direct.cost);
+  ASSERT_EQ(taken->estimates.size(), direct.estimates.size());
+  for (std::size_t i = 0; i < direct.estimates.size(); ++i) {
+    EXPECT_EQ(taken->estimates[i].value, direct.estimates[i].value) << direct.estimates[i].name;
+    EXPECT_EQ(taken->estimates[i].se, direct.estimates[i].se) << direct.estimates[i].name;
+  }
+  ASSERT_EQ(taken->trials.size(), direct.trials.size());
+  for (std::size_t k = 0; k < direct.trials.size(); ++k)
+    EXPECT_EQ(taken->trials[k].contact_shift_s, direct.trials[k].contact_shift_s) << direct.trials[k].id;
+
+  // Another training trial, or one force sample changed: not taken.
+  early.start(data, options);
+  fitting::Model6FitOptions other = options;
+  other.train_ids = {data[2].id};
+  EXPECT_FALSE(early.take(data, other).has_value());
+  early.start(data, options);
+  std::vector<fitting::TrialData> changed = data;
+  changed[0].grf_n[changed[0].grf_n.size() / 2] += 1e-9;
+  EXPECT_FALSE(early.take(changed, options).has_value());
+
+  std::atomic<bool> cancel{true};
+  options.cancel = &cancel;
+  EXPECT_THROW(fitting::fit_model6(data, options), Error);
 }
 
 TEST(Model6Pipeline, ContinuumC1FinalModelIsModel6) {
