@@ -160,7 +160,9 @@ TEST(InstrumentFaults, SaturatedTrialsAreRejectedTheOthersKept) {
   const Outcome r = run(ss.session);
   for (std::size_t i = 0; i < clipped.size(); ++i) {
     EXPECT_EQ(r.state.trials[i].result.accepted, !clipped[i]) << i << "\n" << r.reasons();
-    if (clipped[i]) EXPECT_TRUE(contains(r.state.trials[i].result.reject_reason, "saturated")) << r.reasons();
+    if (clipped[i]) {
+      EXPECT_TRUE(contains(r.state.trials[i].result.reject_reason, "saturated")) << r.reasons();
+    }
   }
   EXPECT_EQ(effect(r.loop, "force_scale"), nullptr) << r.reasons();
 }
