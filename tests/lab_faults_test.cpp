@@ -198,3 +198,98 @@ TEST(LabFaults, CleanForceRecordKeepsItsTimeBase) {
 
 }  // namespace
 }  // namespace dropfit
+
+namespace dropfit {
+namespace {
+
+Session independent_session(std::uint64_t seed) {
+  return synth::make_session(synth::independent_world_options(seed)).session;
+}
+
+// ---- One vertical channel's sensitivity off -----------------------------------
+
+// Before: Fz1 10 % high gave a twist of 2.0-3.3 % of Fz (inside the rigid-
+// plate bound), every trial accepted, a force scale of 1.024 and a
+// hysteresis named. Now every trial's impulse balance is 1 + its twist, which
+// only one channel's gain makes: every trial rejected, the channel named
+// with its gain error.
+TEST(LabFaults, OneVerticalChannelOffRejectsNamingTheChannel) {
+  struct Case {
+    int column;
+    double gain;
+    std::string says;
+  };
+  for (const Case& c : {Case{4, 1.10, "Fz1 reads 10."}, Case{5, 0.90, "Fz2 reads 10."}}) {
+    Session s = independent_session(42);
+    for (auto& trial : s.trials) trial.force.data.col(c.column) *= c.gain;
+    const pipeline::SessionState state = trials_of(s);
+    if (std::getenv("DROPFIT_SHOW")) std::cerr << verdicts(state);
+    for (const auto& t : state.trials) {
+      EXPECT_FALSE(t.result.accepted) << t.result.id;
+      EXPECT_TRUE(contains(t.result.reject_reason, "one vertical channel's sensitivity is off")) << t.result.reject_reason;
+      EXPECT_TRUE(contains(t.result.reject_reason, c.says)) << t.result.reject_reason;
+      // The twist is the channel's error times its share (about a quarter).
+      ASSERT_TRUE(t.force.has_value());
+      EXPECT_NEAR(std::abs(t.force->twist_fraction), 0.025, 0.01) << t.result.id;
+    }
+  }
+}
+
+// The clean session: twist within 0.05 % of Fz, nothing rejected.
+TEST(LabFaults, CleanPlateHasNoChannelOff) {
+  const pipeline::SessionState state = trials_of(independent_session(42));
+  for (const auto& t : state.trials) {
+    EXPECT_TRUE(t.result.accepted) << t.result.reject_reason;
+    ASSERT_TRUE(t.force.has_value());
+    EXPECT_LT(std::abs(t.force->twist_fraction), 0.0005) << t.result.id;
+  }
+}
+
+// ---- The first reason names the fault ------------------------------------------
+
+void add_hum(Session& s, double amplitude_n) {
+  for (auto& trial : s.trials)
+    for (int c = 4; c < 8; ++c)
+      for (Eigen::Index i = 0; i < trial.force.data.rows(); ++i)
+        trial.force.data(i, c) += amplitude_n * std::sin(2.0 * M_PI * 50.0 * static_cast<double>(i) /
+                                                             trial.force.sample_rate_hz + 0.3);
+}
+
+// Before: 20 N of 50 Hz hum on each vertical channel was "Fz first reaches
+// 25 N at sample 1 (... from the declared trigger sample 500)", a pretrigger
+// mismatch. Now the hum is the reason, with its amplitude on Fz (4 x 20 N).
+TEST(LabFaults, MainsHumIsNamedAsHum) {
+  Session s = independent_session(42);
+  add_hum(s, 20.0);
+  const pipeline::SessionState state = trials_of(s);
+  for (const auto& t : state.trials) {
+    EXPECT_FALSE(t.result.accepted) << t.result.id;
+    const std::string& r = t.result.reject_reason;
+    ASSERT_TRUE(contains(r, "force record: mains hum: before the trigger Fz oscillates at 50 Hz")) << r;
+    const auto at = r.find("an amplitude of ");
+    ASSERT_NE(at, std::string::npos) << r;
+    EXPECT_NEAR(std::stod(r.substr(at + 16)), 80.0, 2.0) << r;
+  }
+  // 3 N on each channel (12 N on Fz): below the trigger, accepted as before.
+  Session quiet = independent_session(42);
+  add_hum(quiet, 3.0);
+  for (const auto& t : trials_of(quiet).trials) EXPECT_TRUE(t.result.accepted) << t.result.reject_reason;
+}
+
+// Before: a frame lost in both cameras 40 frames before contact was first
+// blamed on the frame rate ("would have to be 923 Hz"). Now the lost frame
+// is the first reason, the fall's acceleration after it.
+TEST(LabFaults, FrameLostEarlyInTheFallIsTheFirstReason) {
+  Session s = independent_session(42);
+  const int contact = s.manifest.video.trigger_frame;
+  for (auto& trial : s.trials) lose_frame(trial.tracks, contact - 40);
+  const pipeline::SessionState state = trials_of(s);
+  for (const auto& t : state.trials) {
+    EXPECT_FALSE(t.result.accepted) << t.result.id;
+    EXPECT_EQ(t.result.reject_reason.rfind("video: the falling face moves", 0), 0u) << t.result.reject_reason;
+    EXPECT_TRUE(contains(t.result.reject_reason, "a frame lost or repeated")) << t.result.reject_reason;
+  }
+}
+
+}  // namespace
+}  // namespace dropfit

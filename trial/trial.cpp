@@ -305,8 +305,10 @@ FreeFallFit free_fall_before(const Eigen::VectorXd& h, int crossing, const Video
                                                         Eigen::Map<Eigen::VectorXd>(zs.data(), std::ssize(zs)));
     res.fall_accel_m_s2 = fall.accel_m_s2;
     res.fall_accel_se_m_s2 = fall.se_m_s2;
-    if (std::string r = fall_acceleration_reason(fall, o); !r.empty()) reasons.push_back(std::move(r));
+    // A frame lost or repeated bends the fall's fitted acceleration too: the
+    // step, the cause, is the first reason.
     if (std::string r = frame_step_reason(ts, zs, ff, o); !r.empty()) reasons.push_back(std::move(r));
+    if (std::string r = fall_acceleration_reason(fall, o); !r.empty()) reasons.push_back(std::move(r));
   }
   return ff;
 }
