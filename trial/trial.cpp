@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "core/error.h"
+#include "core/median.h"
 #include "core/validate.h"
 
 namespace dropfit::trial {
@@ -864,12 +865,14 @@ CalibrationQuality calibration_quality(const calibration::CalibrationResult& cal
 
 void apply_calibration_gates(TrialResult& result, const reconstruction::Trajectories& markers,
                              const TrialOptions& options, const CalibrationQuality& quality) {
-  std::vector<double> r;
+  std::vector<double> r, change;
   for (int p : options.base_markers) {
     if (p < 0 || p >= markers.n_points()) continue;
     for (int i = 0; i < markers.n_frames(); ++i) {
       const double v = markers.residual_px(i, p);
       if (std::isfinite(v)) r.push_back(v);
+      if (i > 0 && std::isfinite(v) && std::isfinite(markers.residual_px(i - 1, p)))
+        change.push_back(std::abs(v - markers.residual_px(i - 1, p)));
     }
   }
   std::vector<std::string> reasons;
@@ -893,6 +896,16 @@ void apply_calibration_gates(TrialResult& result, const reconstruction::Trajecto
         "they stand and {:.2g} px when camera {}'s row k + {} is read beside camera {}'s row k (the cameras were not "
         "synchronised, or one lost or repeated a frame: align the rows, e.g. with DLTdv's frame offsets)",
         lag.rms_px(0), lag.rms_px(lag.best_lag), lag.name, lag.best_lag, lag.reference));
+  }
+  if (reasons.empty() && change.size() >= 20 && std::isfinite(quality.fit_rms_px)) {
+    const double steady = median(change), calibration_px = quality.fit_rms_px;
+    if (result.reprojection_residual_px > kSteadyResidualFactor * std::max(steady, calibration_px))
+      reasons.push_back(fmt::format(
+          "the cameras' rays miss each other by a steady {:.2g} px (median over the base markers; it changes by "
+          "{:.2g} px from frame to frame, so it is not the digitising noise, and the calibration leaves {:.2g} px "
+          "between its own rays): a camera moved after calibration (a bumped tripod or lens), or the calibration is "
+          "another setup's; every position, and the impact velocity, is measured through the wrong rays",
+          result.reprojection_residual_px, steady, calibration_px));
   }
   if (reasons.empty()) return;
   for (auto& reason : reasons) {
