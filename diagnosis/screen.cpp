@@ -30,13 +30,33 @@ bool same_record(const forceplate::ForceTrial& a, const forceplate::ForceTrial& 
 }
 
 
+// How far a trial's whole-contact restitution (impulse against its own
+// video's momentum) lies outside the 0-1 a rebound allows.
+double restitution_miss(const trial::TrialResult& r) {
+  return std::isfinite(r.restitution) ? std::abs(r.restitution - std::clamp(r.restitution, 0.0, 1.0))
+                                      : std::numeric_limits<double>::infinity();
+}
+
 // One recording under two trial ids (copied files, or a folder read twice):
-// the later ones rejected.
+// the later ones rejected. When the earlier trial was already rejected and
+// the record's impulse fits its video worse than the later one's (another
+// trial's force file copied into its folder), the record is the later
+// one's: the later trial stands and the earlier one's reason says whose
+// record it holds.
 void reject_duplicates(SessionData& state, ScreenResult& out) {
   for (std::size_t i = 0; i < state.trials.size(); ++i) {
     if (!state.trials[i].force || !state.trials[i].result.accepted) continue;
     for (std::size_t j = 0; j < i; ++j) {
       if (!state.trials[j].force || !same_record(*state.trials[i].force, *state.trials[j].force)) continue;
+      if (!state.trials[j].result.accepted &&
+          restitution_miss(state.trials[j].result) > restitution_miss(state.trials[i].result)) {
+        reject(state, j,
+               fmt::format("its force record is {}'s, sample for sample, and fits {}'s video: the force file "
+                           "belongs to that drop",
+                           state.trials[i].result.id, state.trials[i].result.id),
+               out);
+        continue;
+      }
       reject(state, i,
              fmt::format("its force record is {}'s, sample for sample: one drop counted twice (two trials reading "
                          "one recording)",

@@ -332,3 +332,50 @@ TEST(LabFaults, CameraMovedAfterCalibrationRejectsEveryTrial) {
 
 }  // namespace
 }  // namespace dropfit
+
+namespace dropfit {
+namespace {
+
+// The two cameras' columns exchanged (the [video].cameras order, or the two
+// DLT files, the wrong way round). Before: rejected, but the first reason
+// read was the frame rate ("would have to be 969 Hz"). Now the rays, 26-29 px
+// apart, are the first reason.
+TEST(LabFaults, CamerasExchangedNameTheRaysFirst) {
+  Session s = independent_session(42);
+  for (auto& trial : s.trials) {
+    MarkerTracks2D& tr = trial.tracks;
+    for (int p = 0; p < tr.n_points(); ++p) {
+      const Eigen::MatrixXd first = tr.uv_px.middleCols(tr.column(p, 0), 2);
+      tr.uv_px.middleCols(tr.column(p, 0), 2) = tr.uv_px.middleCols(tr.column(p, 1), 2);
+      tr.uv_px.middleCols(tr.column(p, 1), 2) = first;
+    }
+  }
+  for (const auto& t : trials_of(s).trials) {
+    EXPECT_FALSE(t.result.accepted) << t.result.id;
+    EXPECT_EQ(t.result.reject_reason.rfind("markers reproject", 0), 0u) << t.result.reject_reason;
+    EXPECT_GT(t.result.reprojection_residual_px, 20.0) << t.result.id;
+  }
+}
+
+// Trial 2's folder holds trial 4's force file. Before: trial 2 rejected (its
+// impulse 2.42 times its own momentum) and trial 4, whose record it is,
+// rejected as "one drop counted twice". Now trial 4 stands and trial 2's
+// reason says whose record it holds.
+TEST(LabFaults, ForceFileOfAnotherTrialKeepsItsOwner) {
+  Session s = independent_session(42);
+  s.trials[1].force = s.trials[3].force;
+  const pipeline::SessionState state = trials_of(s);
+  if (std::getenv("DROPFIT_SHOW")) std::cerr << verdicts(state);
+  for (std::size_t i = 0; i < state.trials.size(); ++i) {
+    const auto& r = state.trials[i].result;
+    if (i == 1) {
+      EXPECT_FALSE(r.accepted);
+      EXPECT_TRUE(contains(r.reject_reason, "its force record is trial4's")) << r.reject_reason;
+    } else {
+      EXPECT_TRUE(r.accepted) << r.id << ": " << r.reject_reason;
+    }
+  }
+}
+
+}  // namespace
+}  // namespace dropfit

@@ -903,15 +903,16 @@ void apply_calibration_gates(TrialResult& result, const reconstruction::Trajecto
       reasons.push_back(fmt::format(
           "the cameras' rays miss each other by a steady {:.2g} px (median over the base markers; it changes by "
           "{:.2g} px from frame to frame, so it is not the digitising noise, and the calibration leaves {:.2g} px "
-          "between its own rays): a camera moved after calibration (a bumped tripod or lens), or the calibration is "
-          "another setup's; every position, and the impact velocity, is measured through the wrong rays",
+          "between its own rays): a camera moved after calibration (a bumped tripod or lens), the calibration is "
+          "another setup's, or one camera's rows lost a frame the other's did not; every position, and the impact "
+          "velocity, is measured through the wrong rays",
           result.reprojection_residual_px, steady, calibration_px));
   }
   if (reasons.empty()) return;
-  for (auto& reason : reasons) {
-    if (!result.reject_reason.empty()) result.reject_reason += "; ";
-    result.reject_reason += reason;
-  }
+  // Rays that do not meet make every measurement of the trial wrong (the
+  // fall's acceleration, the tilt): they are its first reason.
+  std::string first = join(reasons, "; ");
+  result.reject_reason = result.reject_reason.empty() ? first : first + "; " + result.reject_reason;
   result.accepted = false;
 }
 
