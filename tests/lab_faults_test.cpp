@@ -1,6 +1,8 @@
 // Faults a lab meets beyond the instrument's channels (docs/faults.md): two
-// cameras out of step, and a force record whose sample rate is declared
-// wrong. Each on a lab session of the project's own generator
+// cameras out of step, a video frame lost, a force record whose sample rate
+// is declared wrong, one vertical channel's sensitivity off, mains hum, a
+// camera moved after calibration, the cameras exchanged, and a force file
+// from another trial. Each on a lab session of the project's own generator
 // (samples/generator, which shares no simulation code with fitting/), the
 // fault put into the session as the lab's files would carry it. Each must
 // end in the affected trials rejected with the reason, or in the loop
@@ -196,11 +198,6 @@ TEST(LabFaults, CleanForceRecordKeepsItsTimeBase) {
   EXPECT_EQ(loop.find("force_scale"), nullptr) << loop.report();
 }
 
-}  // namespace
-}  // namespace dropfit
-
-namespace dropfit {
-namespace {
 
 Session independent_session(std::uint64_t seed) {
   return synth::make_session(synth::independent_world_options(seed)).session;
@@ -291,11 +288,6 @@ TEST(LabFaults, FrameLostEarlyInTheFallIsTheFirstReason) {
   }
 }
 
-}  // namespace
-}  // namespace dropfit
-
-namespace dropfit {
-namespace {
 
 // Camera `camera`'s image moved by (du, dv) px after calibration: every
 // marker it digitises is off by that much.
@@ -330,11 +322,6 @@ TEST(LabFaults, CameraMovedAfterCalibrationRejectsEveryTrial) {
   for (const auto& t : trials_of(small).trials) EXPECT_TRUE(t.result.accepted) << t.result.reject_reason;
 }
 
-}  // namespace
-}  // namespace dropfit
-
-namespace dropfit {
-namespace {
 
 // The two cameras' columns exchanged (the [video].cameras order, or the two
 // DLT files, the wrong way round). Before: rejected, but the first reason
