@@ -680,6 +680,11 @@ DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& optio
 //   others' scatter. The plate's gain and the declared mass move every
 //   trial alike (the loop's force_scale names them); one trial alone off
 //   has a fault of its own (a channel, a second impact, a frame count).
+// - every accepted trial when one vertical channel's sensitivity is off:
+//   the eight channels' twist (forceplate::ForceTrial::twist_fraction)
+//   beyond 1 % of Fz over the session and each trial's balance 1 +- its own
+//   twist, which a plate's own twist (balance 1) or a gain or mass (every
+//   trial alike) does not make; the channel named (screen.cpp);
 // - every accepted trial when the clock offsets (video contact minus plate
 //   onset) change with 1 / impact speed: offset = c + dh / v, where a clock
 //   offset is c alone and a contact height off by dh (the face height's

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 
@@ -29,13 +30,33 @@ bool same_record(const forceplate::ForceTrial& a, const forceplate::ForceTrial& 
 }
 
 
+// How far a trial's whole-contact restitution (impulse against its own
+// video's momentum) lies outside the 0-1 a rebound allows.
+double restitution_miss(const trial::TrialResult& r) {
+  return std::isfinite(r.restitution) ? std::abs(r.restitution - std::clamp(r.restitution, 0.0, 1.0))
+                                      : std::numeric_limits<double>::infinity();
+}
+
 // One recording under two trial ids (copied files, or a folder read twice):
-// the later ones rejected.
+// the later ones rejected. When the earlier trial was already rejected and
+// the record's impulse fits its video worse than the later one's (another
+// trial's force file copied into its folder), the record is the later
+// one's: the later trial stands and the earlier one's reason says whose
+// record it holds.
 void reject_duplicates(SessionData& state, ScreenResult& out) {
   for (std::size_t i = 0; i < state.trials.size(); ++i) {
     if (!state.trials[i].force || !state.trials[i].result.accepted) continue;
     for (std::size_t j = 0; j < i; ++j) {
       if (!state.trials[j].force || !same_record(*state.trials[i].force, *state.trials[j].force)) continue;
+      if (!state.trials[j].result.accepted &&
+          restitution_miss(state.trials[j].result) > restitution_miss(state.trials[i].result)) {
+        reject(state, j,
+               fmt::format("its force record is {}'s, sample for sample, and fits {}'s video: the force file "
+                           "belongs to that drop",
+                           state.trials[i].result.id, state.trials[i].result.id),
+               out);
+        continue;
+      }
       reject(state, i,
              fmt::format("its force record is {}'s, sample for sample: one drop counted twice (two trials reading "
                          "one recording)",
@@ -46,31 +67,34 @@ void reject_duplicates(SessionData& state, ScreenResult& out) {
   }
 }
 
-// Each trial's impulse-momentum balance in the impactor's free flight
-// against the other trials' median: the plate's gain and the declared mass
-// are the session's, so they move every trial alike (the loop's
-// force_scale); one trial alone far off has a fault of its own.
-void reject_impulse_outliers(SessionData& state, const ScreenOptions& o, ScreenResult& out) {
-  const std::vector<PlateTrial> plates = plate_trials(state, 0.0);
-  struct Row {
-    std::size_t index;
-    double ratio, sd;
-  };
-  std::vector<Row> rows;
-  for (const PlateTrial& p : plates) {
+// Each trial's impulse-momentum balance in the impactor's free flight and
+// its own uncertainty: the mat's momentum left in the balance (its spread
+// over the flight window) and the impact velocity's (95 % half-width / 1.96).
+struct BalanceRow {
+  std::size_t index;
+  double ratio, sd;
+};
+std::vector<BalanceRow> balance_rows(const SessionData& state) {
+  std::vector<BalanceRow> rows;
+  for (const PlateTrial& p : plate_trials(state, 0.0)) {
     const ImpulseBalance b = impulse_balance(p, PlateCorrection{}, state.impactor_mass_kg, state.gravity_m_s2);
     if (!std::isfinite(b.ratio)) continue;
     std::size_t index = 0;
     while (index < state.trials.size() && state.trials[index].result.id != p.id) ++index;
     const trial::TrialResult& r = state.trials[index].result;
-    // The ratio's own uncertainty: the mat's momentum left in the balance
-    // (its spread over the flight window) and the impact velocity's
-    // (95 % half-width / 1.96).
     const double v_sd = std::isfinite(r.impact_velocity_ci_m_s) && r.impact_velocity_m_s > 0.0
                             ? r.impact_velocity_ci_m_s / 1.96 / r.impact_velocity_m_s
                             : 0.0;
     rows.push_back({index, b.ratio, std::hypot(b.spread, v_sd)});
   }
+  return rows;
+}
+
+// Each trial's balance against the other trials' median: the plate's gain
+// and the declared mass are the session's, so they move every trial alike
+// (the loop's force_scale); one trial alone far off has a fault of its own.
+void reject_impulse_outliers(SessionData& state, const ScreenOptions& o, ScreenResult& out) {
+  const std::vector<BalanceRow> rows = balance_rows(state);
   if (rows.size() < 3) {
     out.notes.push_back(fmt::format("screen: impulse balance in free flight for {} trial(s); trials not compared",
                                     rows.size()));
@@ -97,6 +121,86 @@ void reject_impulse_outliers(SessionData& state, const ScreenOptions& o, ScreenR
                          rows[k].ratio, centre, 100.0 * off, 100.0 * tol),
              out);
     }
+  }
+}
+
+// One vertical channel's sensitivity off by e: that channel's share p of
+// Fz reads (1 + e) p, so Fz is off by e p and the vertical sensors' twist
+// Fz1 - Fz2 + Fz3 - Fz4 (zero on a rigid plate with matched sensors) is
+// +-e p of Fz, + for Fz1 and Fz3, - for Fz2 and Fz4: the impulse against
+// the momentum is then 1 + twist (Fz1, Fz3) or 1 - twist (Fz2, Fz4) trial
+// by trial, following each trial's twist as the landing point moves the
+// share. A plate's own twist (sensors that do not share the load as a
+// rigid plate would: real plates show several per cent) leaves the sum Fz
+// right and the balance at 1; a plate gain or a wrong declared mass moves
+// every trial's balance alike, whatever its twist. So the trials are
+// rejected when the session's twist is beyond the 1 % a plate gain may be
+// before the loop names it, the balances depart from 1 beyond their
+// uncertainty, and each trial's balance is 1 +- its twist within 4 of its
+// SDs. The channel is the one of the pair whose gain error e = twist / p
+// stays the same from trial to trial (the landing points differ a little);
+// both are named when they cannot be told apart.
+void reject_channel_gain(SessionData& state, const ScreenOptions& o, ScreenResult& out) {
+  constexpr double kTolerableTwist = 0.01;
+  struct Row {
+    BalanceRow balance;
+    double twist;
+    std::array<double, 4> shares;
+  };
+  std::vector<Row> rows;
+  for (const BalanceRow& b : balance_rows(state)) {
+    const auto& force = state.trials[b.index].force;
+    if (!state.trials[b.index].result.accepted || !force || !std::isfinite(force->twist_fraction)) continue;
+    rows.push_back({b, force->twist_fraction, force->vertical_shares});
+  }
+  if (rows.size() < 3) return;
+  std::vector<double> twists;
+  for (const Row& r : rows) twists.push_back(r.twist);
+  const double twist = median(twists);
+  if (!(std::abs(twist) > kTolerableTwist)) return;
+  double chi2_one = 0.0;  // the balances against 1: a plate's own twist
+  for (const Row& r : rows) chi2_one += std::pow((r.balance.ratio - 1.0) / r.balance.sd, 2);
+  if (!(chi2_one > o.sd_factor * o.sd_factor * static_cast<double>(rows.size()))) return;
+  // sign +1: Fz1 or Fz3; -1: Fz2 or Fz4.
+  for (int sign : {1, -1}) {
+    bool fits = true;
+    for (const Row& r : rows)
+      fits = fits && std::abs(r.balance.ratio - 1.0 - sign * r.twist) <= o.sd_factor * r.balance.sd;
+    if (!fits) continue;
+    const std::array<int, 2> pair = sign > 0 ? std::array<int, 2>{0, 2} : std::array<int, 2>{1, 3};
+    std::array<double, 2> gain{}, spread{};
+    for (int k = 0; k < 2; ++k) {
+      std::vector<double> e;
+      // The channel's share as read is (1 + e) p; the twist, e p for
+      // Fz1 and Fz3, -e p for Fz2 and Fz4 (fractions of the Fz read).
+      for (const Row& r : rows)
+        e.push_back(sign * r.twist / (r.shares[static_cast<std::size_t>(pair[k])] - sign * r.twist));
+      gain[k] = median(e);
+      std::vector<double> dev;
+      for (double v : e) dev.push_back(std::abs(v - gain[k]));
+      spread[k] = 1.4826 * median(dev) / std::abs(gain[k]);
+    }
+    auto says = [&](int k) {
+      return fmt::format("Fz{} reads {:.1f} % {}", pair[k] + 1, 100.0 * std::abs(gain[k]), gain[k] > 0 ? "high" : "low");
+    };
+    const int best = spread[0] <= spread[1] ? 0 : 1;
+    const std::string channel =
+        spread[best] < 0.5 * spread[1 - best]
+            ? fmt::format("{} (its gain error stays within {:.1f} % of itself from trial to trial; as {}, within "
+                          "{:.1f} %)",
+                          says(best), 100.0 * spread[best], says(1 - best), 100.0 * spread[1 - best])
+            : fmt::format("{} or {} (the landing points do not tell the two apart)", says(0), says(1));
+    for (const Row& r : rows)
+      reject(state, r.balance.index,
+             fmt::format("one vertical channel's sensitivity is off: the vertical sensors' twist Fz1 - Fz2 + Fz3 - "
+                         "Fz4 is {:+.2f} % of Fz and the impulse against the momentum {:.4f} (+- {:.4f}), as a "
+                         "channel reading {} makes them (the session's twist {:+.2f} %, beyond the {:.0f} % a plate "
+                         "gain may be): {}; Fz is off by the twist, differently in each trial, which no plate gain "
+                         "or mass corrects",
+                         100.0 * r.twist, r.balance.ratio, r.balance.sd,
+                         sign * twist > 0 ? "high" : "low", 100.0 * twist, 100.0 * kTolerableTwist, channel),
+             out);
+    return;
   }
 }
 
@@ -157,6 +261,7 @@ std::string contact_height_reason(const SessionData& state, double floor_m, doub
 ScreenResult screen_trials(SessionData& state, const ScreenOptions& options) {
   ScreenResult out;
   reject_duplicates(state, out);
+  reject_channel_gain(state, options, out);
   reject_impulse_outliers(state, options, out);
   reject_height_inconsistency(state, options, out);
   return out;

@@ -50,6 +50,7 @@
 
 #include <fmt/format.h>
 
+#include <Eigen/QR>
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -425,6 +426,39 @@ void zero_plate(const Resultants& raw, int quiet_end, int declared, const Proces
   out.plate.m_n_m = raw.m_n_m.rowwise() - out.offset.tail<3>().transpose();
 }
 
+// Mains hum: the pre-trigger Fz as a level plus one sinusoid at 50 or 60 Hz
+// (least squares). Named when the sinusoid carries most of the pre-trigger
+// variance (what is left is the channels' own noise) and its amplitude is
+// more than half the trigger threshold, so that it alone, with that noise,
+// can cross it. Empty otherwise.
+std::string mains_hum_reason(const Eigen::VectorXd& fz, double dt, double threshold_n) {
+  const Eigen::Index n = fz.size();
+  if (n < 40) return {};
+  std::string best;
+  double best_explained = 0.0;
+  for (double f_hz : {50.0, 60.0}) {
+    if (!(2.0 * f_hz * dt < 1.0)) continue;  // above the Nyquist frequency
+    Eigen::MatrixXd a(n, 3);
+    for (Eigen::Index i = 0; i < n; ++i) {
+      const double w = 2.0 * std::numbers::pi * f_hz * dt * static_cast<double>(i);
+      a(i, 0) = 1.0, a(i, 1) = std::cos(w), a(i, 2) = std::sin(w);
+    }
+    const Eigen::Vector3d c = a.colPivHouseholderQr().solve(fz);
+    const double total = (fz.array() - fz.mean()).square().sum();
+    const double left = (fz - a * c).squaredNorm();
+    const double explained = total > 0.0 ? 1.0 - left / total : 0.0;
+    const double amplitude = std::hypot(c[1], c[2]);
+    if (explained > 0.8 && amplitude > 0.5 * threshold_n && explained > best_explained) {
+      best_explained = explained;
+      best = fmt::format(
+          "mains hum: before the trigger Fz oscillates at {:.0f} Hz with an amplitude of {:.1f} N ({:.0f} % of its "
+          "variance; the rest, the channels' noise, {:.1f} N SD)",
+          f_hz, amplitude, 100.0 * explained, std::sqrt(left / static_cast<double>(n)));
+    }
+  }
+  return best;
+}
+
 // The first sample at or above the trigger threshold (and its interpolated
 // time) into out; throws when there is none or it is far from the declared
 // trigger sample.
@@ -449,6 +483,10 @@ int trigger_crossing(const Eigen::VectorXd& fz, const Eigen::VectorXd& t, double
     out.trigger_time_s = t[crossing - 1] + (options.trigger_threshold_n - f0) / (f1 - f0) * (t[crossing] - t[crossing - 1]);
   }
   if (std::abs(t[crossing]) > options.max_trigger_mismatch_s + 0.5 * dt) {
+    if (std::string hum = mains_hum_reason(fz.head(std::min(declared, n)), dt, options.trigger_threshold_n); !hum.empty())
+      throw Error(fmt::format("force record: {}: Fz first reaches {} N at sample {} ({:+.1f} ms from the declared "
+                              "trigger sample {}) on the hum, not on a contact",
+                              hum, options.trigger_threshold_n, crossing, 1e3 * t[crossing], declared));
     throw Error(fmt::format(
         "force record: Fz first reaches {} N at sample {} ({:+.1f} ms from the declared trigger sample {}): the "
         "pre-trigger share does not match the record",
@@ -515,7 +553,7 @@ void finish_plate(const Resultants& raw, const ProcessOptions& options, ForceTri
 
 // Throws when the eight channels of a Kistler record cannot be one rigid
 // plate's under the contact (see forceplate.h, ProcessOptions::check_channels).
-void check_eight_channels(const ForceTrial& trial, int quiet_end) {
+void check_eight_channels(ForceTrial& trial, int quiet_end) {
   const Eigen::MatrixXd& x = trial.plate.channels_n;
   if (x.cols() != 8 || trial.plate.channel_names != eight_channel_names() || quiet_end < 2) return;
   Eigen::MatrixXd z(x.rows(), 8);  // zeroed on the quiet part
@@ -536,6 +574,8 @@ void check_eight_channels(const ForceTrial& trial, int quiet_end) {
   const double twist = median_of([&](int i) { return (z(i, 4) - z(i, 5) + z(i, 6) - z(i, 7)) / fz[i]; });
   const double shear_x = median_of([&](int i) { return (z(i, 0) + z(i, 1)) / fz[i]; });
   const double shear_y = median_of([&](int i) { return (z(i, 2) + z(i, 3)) / fz[i]; });
+  trial.twist_fraction = twist;
+  for (int c = 0; c < 4; ++c) trial.vertical_shares[static_cast<std::size_t>(c)] = shares[static_cast<std::size_t>(c + 4)];
   std::vector<std::string> broken;
   if (std::abs(twist) > kMaxTwistFraction)
     broken.push_back(fmt::format("the vertical sensors' twist Fz1 - Fz2 + Fz3 - Fz4 is {:+.0f} % of Fz (a rigid "

@@ -21,6 +21,7 @@
 // eight-channel export already has t = 0 there; an absolute BioWare time
 // column is rebased to it by process().
 #include <Eigen/Core>
+#include <array>
 #include <limits>
 #include <string>
 #include <vector>
@@ -132,6 +133,14 @@ struct ForceTrial {
   double end_time_s = 0.0;       // Fz back within the noise band after the peak (interpolated)
   int end_index = 0;             // first sample at or after end_time_s (n - 1 if never)
   bool end_found = false;        // false when Fz never returned to zero within the record
+  // Eight-channel records: the vertical sensors' twist (Fz1 - Fz2 + Fz3 -
+  // Fz4) / Fz and each vertical channel's share of Fz (Fz1..Fz4), medians
+  // over the contact's samples above 30 % of its peak; NaN otherwise.
+  double twist_fraction = std::numeric_limits<double>::quiet_NaN();
+  std::array<double, 4> vertical_shares{std::numeric_limits<double>::quiet_NaN(),
+                                        std::numeric_limits<double>::quiet_NaN(),
+                                        std::numeric_limits<double>::quiet_NaN(),
+                                        std::numeric_limits<double>::quiet_NaN()};
   std::vector<std::string> absent;  // channels the record does not have (Resultants::absent)
   std::string cop_unavailable;      // why there is no centre of pressure; empty when there is one
 

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "core/error.h"
+#include "core/median.h"
 #include "core/validate.h"
 
 namespace dropfit::trial {
@@ -305,8 +306,10 @@ FreeFallFit free_fall_before(const Eigen::VectorXd& h, int crossing, const Video
                                                         Eigen::Map<Eigen::VectorXd>(zs.data(), std::ssize(zs)));
     res.fall_accel_m_s2 = fall.accel_m_s2;
     res.fall_accel_se_m_s2 = fall.se_m_s2;
-    if (std::string r = fall_acceleration_reason(fall, o); !r.empty()) reasons.push_back(std::move(r));
+    // A frame lost or repeated bends the fall's fitted acceleration too: the
+    // step, the cause, is the first reason.
     if (std::string r = frame_step_reason(ts, zs, ff, o); !r.empty()) reasons.push_back(std::move(r));
+    if (std::string r = fall_acceleration_reason(fall, o); !r.empty()) reasons.push_back(std::move(r));
   }
   return ff;
 }
@@ -862,12 +865,14 @@ CalibrationQuality calibration_quality(const calibration::CalibrationResult& cal
 
 void apply_calibration_gates(TrialResult& result, const reconstruction::Trajectories& markers,
                              const TrialOptions& options, const CalibrationQuality& quality) {
-  std::vector<double> r;
+  std::vector<double> r, change;
   for (int p : options.base_markers) {
     if (p < 0 || p >= markers.n_points()) continue;
     for (int i = 0; i < markers.n_frames(); ++i) {
       const double v = markers.residual_px(i, p);
       if (std::isfinite(v)) r.push_back(v);
+      if (i > 0 && std::isfinite(v) && std::isfinite(markers.residual_px(i - 1, p)))
+        change.push_back(std::abs(v - markers.residual_px(i - 1, p)));
     }
   }
   std::vector<std::string> reasons;
@@ -892,11 +897,22 @@ void apply_calibration_gates(TrialResult& result, const reconstruction::Trajecto
         "synchronised, or one lost or repeated a frame: align the rows, e.g. with DLTdv's frame offsets)",
         lag.rms_px(0), lag.rms_px(lag.best_lag), lag.name, lag.best_lag, lag.reference));
   }
-  if (reasons.empty()) return;
-  for (auto& reason : reasons) {
-    if (!result.reject_reason.empty()) result.reject_reason += "; ";
-    result.reject_reason += reason;
+  if (reasons.empty() && change.size() >= 20 && std::isfinite(quality.fit_rms_px)) {
+    const double steady = median(change), calibration_px = quality.fit_rms_px;
+    if (result.reprojection_residual_px > kSteadyResidualFactor * std::max(steady, calibration_px))
+      reasons.push_back(fmt::format(
+          "the cameras' rays miss each other by a steady {:.2g} px (median over the base markers; it changes by "
+          "{:.2g} px from frame to frame, so it is not the digitising noise, and the calibration leaves {:.2g} px "
+          "between its own rays): a camera moved after calibration (a bumped tripod or lens), the calibration is "
+          "another setup's, or one camera's rows lost a frame the other's did not; every position, and the impact "
+          "velocity, is measured through the wrong rays",
+          result.reprojection_residual_px, steady, calibration_px));
   }
+  if (reasons.empty()) return;
+  // Rays that do not meet make every measurement of the trial wrong (the
+  // fall's acceleration, the tilt): they are its first reason.
+  std::string first = join(reasons, "; ");
+  result.reject_reason = result.reject_reason.empty() ? first : first + "; " + result.reject_reason;
   result.accepted = false;
 }
 

@@ -418,8 +418,17 @@ void add_calibration_uncertainty(TrialResult& result, const CalibrationQuality& 
 // the digitising noise (0.1-0.5 px here); a camera order swapped in the
 // manifest or points crossed between cameras give tens of pixels. Sets
 // result.reprojection_residual_px.
+// Also rejects it when the rays miss each other steadily: the digitising
+// noise makes the residual change from frame to frame by about its own
+// size, while a camera moved after calibration (a bumped tripod) or a
+// calibration of another setup makes a residual that stays while the noise
+// rides on it. The trial is rejected when the median residual exceeds
+// kSteadyResidualFactor x both the median frame-to-frame change of the
+// residual and the calibration's fit RMS (what the calibration itself
+// leaves between its rays).
 constexpr double kMinResidualLimitPx = 5.0;
 constexpr double kResidualFactor = 10.0;
+constexpr double kSteadyResidualFactor = 5.0;
 void apply_calibration_gates(TrialResult& result, const reconstruction::Trajectories& markers,
                              const TrialOptions& options, const CalibrationQuality& quality);
 
