@@ -350,6 +350,29 @@ void append_order(DiagnosisResult& result, const OrderDiagnosis& order) {
 
 }  // namespace
 
+namespace {
+
+// Between trials: is it one mat in every trial? (`data` is in recording
+// order.) Without the run's own baseline the mat stage's is fitted here, kept
+// in *own so that mo->baseline may point at it.
+std::optional<OrderDiagnosis> judge_order(const std::vector<fitting::TrialData>& data, const DiagnosisOptions& options,
+                                          MatStageOptions* mo, std::optional<fitting::FitResult>* own,
+                                          DiagnosisResult* result) {
+  if (!options.order || data.size() < 4) return std::nullopt;
+  if (!mo->baseline) {
+    try {
+      *own = fitting::fit(data, mo->fit);
+      mo->baseline = &**own;
+    } catch (const std::exception& e) {
+      result->notes.push_back(fmt::format("between trials: not judged: the baseline fit failed: {}", e.what()));
+      return std::nullopt;
+    }
+  }
+  return diagnose_order(data, *mo->baseline, options.order_stage);
+}
+
+}  // namespace
+
 DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& options) {
   DiagnosisResult result;
   MatStageOptions mo = options.mat_stage;
@@ -432,19 +455,9 @@ DiagnosisResult diagnose(const SessionData& state, const DiagnosisOptions& optio
     const fitting::FitResult* run_fit = state.fit(mo.fit.model);
     if (run_fit && !correction.drift && correction.gain == 1.0 && mo.fit.model == state.baseline_fit_options.model)
       mo.baseline = run_fit;
-    // Between trials: is it one mat in every trial? (state.fit_data is in
-    // recording order.) A changing mat leaves the effects of one mat unjudged.
+    // A changing mat leaves the effects of one mat unjudged.
     std::optional<fitting::FitResult> own_baseline;
-    if (options.order && data.size() >= 4 && !mo.baseline) {
-      try {
-        own_baseline = fitting::fit(data, mo.fit);
-        mo.baseline = &*own_baseline;
-      } catch (const std::exception& e) {
-        result.notes.push_back(fmt::format("between trials: not judged: the baseline fit failed: {}", e.what()));
-      }
-    }
-    std::optional<OrderDiagnosis> order;
-    if (options.order && mo.baseline && data.size() >= 4) order = diagnose_order(data, *mo.baseline, options.order_stage);
+    const std::optional<OrderDiagnosis> order = judge_order(data, options, &mo, &own_baseline, &result);
     const bool mat_changes = order && order->changed;
     if (mat_changes) {
       flush();
