@@ -162,8 +162,7 @@ TEST(Identify, TheConjugateSearchReachesTheTruthsBasin) {
 // trails it by a likelihood-ratio statistic of 4.7, just beyond 3.84 (the
 // test's own 5 %). The intervals exclude the truth's basin as the test
 // says, but the SEs carry its posterior share (9 %): every parameter's error
-// is then within 4 of its SE, where this basin's own SE puts it 6-240 SEs
-// off (measured: k1 83, k2 235).
+// is then within 4 of its SE, where this basin's own SE puts it beyond 5.
 TEST(Identify, ATrailingBasinsShareWidensTheStandardErrors) {
   const WorldFit w = fit_linear_world(7054);
   const MatParams& truth = w.session.truth.params;

@@ -106,10 +106,10 @@ void lose_frame(MarkerTracks2D& tr, int frame) {
   tr.uv_px.row(tr.n_frames() - 1).setConstant(std::nan(""));
 }
 
-// Before: a frame repeated 9 frames before contact left the impact velocity
-// 2.6 of its 95 % half-widths low with the trial accepted (the fall's
-// acceleration, fitted over the whole fall, stays near g when the step is
-// near its end). Now the fall's frame-to-frame steps show it.
+// A frame repeated 9 frames before contact biases the impact velocity low
+// while the fall's acceleration, fitted over the whole fall, stays near g
+// (the step is near its end): the fall's frame-to-frame steps show it, and
+// the trial is rejected.
 TEST(LabFaults, FrameLostOrRepeatedInTheFallRejectsThatTrial) {
   Session s = lab_session(11);
   const int contact = s.manifest.video.trigger_frame;
@@ -148,11 +148,10 @@ void declare_force_rate(Session& s, double declared_hz) {
   }
 }
 
-// Before: 2000 Hz declared for 1000 Hz, exit 0, every trial accepted, a
-// force scale of 0.50 named and applied (every peak doubled), Model 4's k1
-// 3.9 times the truth. Now the loop sees the balance over the descent
-// disagree with the whole contact's, which no gain can do, names the force
-// time base with the rate that would make them agree, and corrects nothing.
+// A force rate declared wrong looks like a force scale in the whole
+// contact's impulse balance; the balance over the descent disagrees with it,
+// which no gain can do, so the loop names the force time base with the rate
+// that would make them agree, and corrects nothing.
 TEST(LabFaults, ForceRateDeclaredWrongIsNoForceScale) {
   for (double declared : {2000.0, 1250.0, 800.0}) {
     Session s = lab_session(11);
@@ -205,11 +204,11 @@ Session independent_session(std::uint64_t seed) {
 
 // ---- One vertical channel's sensitivity off -----------------------------------
 
-// Before: Fz1 10 % high gave a twist of 2.0-3.3 % of Fz (inside the rigid-
-// plate bound), every trial accepted, a force scale of 1.024 and a
-// hysteresis named. Now every trial's impulse balance is 1 + its twist, which
-// only one channel's gain makes: every trial rejected, the channel named
-// with its gain error.
+// One channel's gain off twists the plate by a few per cent of Fz, inside
+// the rigid-plate bound, and would pass for a force scale and a hysteresis.
+// Every trial's impulse balance is then 1 + its twist, which only one
+// channel's gain makes: every trial rejected, the channel named with its
+// gain error.
 TEST(LabFaults, OneVerticalChannelOffRejectsNamingTheChannel) {
   struct Case {
     int column;
@@ -252,9 +251,9 @@ void add_hum(Session& s, double amplitude_n) {
                                                              trial.force.sample_rate_hz + 0.3);
 }
 
-// Before: 20 N of 50 Hz hum on each vertical channel was "Fz first reaches
-// 25 N at sample 1 (... from the declared trigger sample 500)", a pretrigger
-// mismatch. Now the hum is the reason, with its amplitude on Fz (4 x 20 N).
+// 20 N of 50 Hz hum on each vertical channel crosses the trigger early and
+// would read as a pretrigger mismatch: the hum is the reason, with its
+// amplitude on Fz (4 x 20 N).
 TEST(LabFaults, MainsHumIsNamedAsHum) {
   Session s = independent_session(42);
   add_hum(s, 20.0);
@@ -273,9 +272,9 @@ TEST(LabFaults, MainsHumIsNamedAsHum) {
   for (const auto& t : trials_of(quiet).trials) EXPECT_TRUE(t.result.accepted) << t.result.reject_reason;
 }
 
-// Before: a frame lost in both cameras 40 frames before contact was first
-// blamed on the frame rate ("would have to be 923 Hz"). Now the lost frame
-// is the first reason, the fall's acceleration after it.
+// A frame lost in both cameras 40 frames before contact also makes the
+// fall's acceleration imply another frame rate: the lost frame is the first
+// reason, the fall's acceleration after it.
 TEST(LabFaults, FrameLostEarlyInTheFallIsTheFirstReason) {
   Session s = independent_session(42);
   const int contact = s.manifest.video.trigger_frame;
@@ -300,10 +299,10 @@ void bump_camera(Session& s, int camera, double du_px, double dv_px) {
     }
 }
 
-// Before: camera 2 moved by 5 px (3, 4) after calibration left every trial
-// accepted with impact velocities 0.07-0.14 % low, two of five outside
-// their intervals (the rays missed by 2.3 px, under the 5 px gate). Now the
-// steady miss is told from the noise: every trial rejected.
+// Camera 2 moved by 5 px (3, 4) after calibration: its rays miss camera 1's
+// by a steady 2.3 px, under the 5 px reprojection gate, biasing the impact
+// velocities by more than their intervals. The steady miss is told from the
+// noise: every trial rejected.
 TEST(LabFaults, CameraMovedAfterCalibrationRejectsEveryTrial) {
   Session s = independent_session(42);
   bump_camera(s, 1, 3.0, 4.0);
@@ -324,9 +323,8 @@ TEST(LabFaults, CameraMovedAfterCalibrationRejectsEveryTrial) {
 
 
 // The two cameras' columns exchanged (the [video].cameras order, or the two
-// DLT files, the wrong way round). Before: rejected, but the first reason
-// read was the frame rate ("would have to be 969 Hz"). Now the rays, 26-29 px
-// apart, are the first reason.
+// DLT files, the wrong way round): the fall also implies another frame
+// rate, but the rays, 26-29 px apart, are the first reason.
 TEST(LabFaults, CamerasExchangedNameTheRaysFirst) {
   Session s = independent_session(42);
   for (auto& trial : s.trials) {
@@ -344,10 +342,10 @@ TEST(LabFaults, CamerasExchangedNameTheRaysFirst) {
   }
 }
 
-// Trial 2's folder holds trial 4's force file. Before: trial 2 rejected (its
-// impulse 2.42 times its own momentum) and trial 4, whose record it is,
-// rejected as "one drop counted twice". Now trial 4 stands and trial 2's
-// reason says whose record it holds.
+// Trial 2's folder holds trial 4's force file: trial 2 is rejected (its
+// impulse far from its own momentum) with a reason that says whose record it
+// holds, and trial 4, whose record it is, stands (not "one drop counted
+// twice").
 TEST(LabFaults, ForceFileOfAnotherTrialKeepsItsOwner) {
   Session s = independent_session(42);
   s.trials[1].force = s.trials[3].force;
