@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "capture/tracking.h"
+#include "capture/text_io.h"
 #include "core/error.h"
 
 namespace dropfit::capture {
@@ -129,16 +130,11 @@ std::vector<LabSeed> read_lab_seed_csv(const std::string& path, const std::vecto
 void write_seed_csv(const std::string& path, const std::vector<Seed>& seeds) {
   std::string text = "point,frame,u_px,v_px\n";
   for (const Seed& s : seeds) text += fmt::format("{},{},{:.3f},{:.3f}\n", s.point, s.frame, s.uv_px.x(), s.uv_px.y());
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream out(tmp, std::ios::binary);
-    if (!out) throw InputError(path, 0, 0, "", "cannot write the seed file");
-    out << text;
-    if (!out) throw InputError(path, 0, 0, "", "cannot write the seed file");
+  try {
+    detail::write_whole(path, text);
+  } catch (const Error& e) {
+    throw InputError(path, 0, 0, "", std::string("cannot write the seed file: ") + e.what());
   }
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) throw InputError(path, 0, 0, "", "cannot write the seed file: " + ec.message());
 }
 
 }  // namespace dropfit::capture

@@ -6,10 +6,10 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 
 #include "capture/footage.h"
 #include "capture/io.h"
+#include "core/atomic_file.h"
 #include "core/error.h"
 #include "pipeline/wiring.h"
 
@@ -54,18 +54,6 @@ std::vector<capture::Seed> project(const std::vector<capture::LabSeed>& lab, con
   std::vector<capture::Seed> seeds;
   for (const auto& s : lab) seeds.push_back({s.point, s.frame, camera.project(s.lab_m), source, s.line});
   return seeds;
-}
-
-void write_whole(const std::string& path, const std::string& text) {
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream out(tmp, std::ios::binary);
-    out << text;
-    if (!out) throw Error(fmt::format("{}: cannot write", path));
-  }
-  std::error_code ec;
-  fs::rename(tmp, path, ec);
-  if (ec) throw Error(fmt::format("{}: cannot write: {}", path, ec.message()));
 }
 
 }  // namespace
@@ -132,7 +120,10 @@ std::vector<std::string> write_track_outcome(const TrackRequest& r, const TrackO
     std::string text = "camera,point,first_frame,last_frame,reason\n";
     for (const auto& [camera, w] : outcome.warnings)
       text += fmt::format("{},{},{},{},\"{}\"\n", camera, w.point, w.frame, w.last_frame, w.reason);
-    write_whole(r.warnings_out, text);
+    const fs::path folder = fs::path(r.warnings_out).parent_path();
+    if (!folder.empty() && !fs::is_directory(folder))
+      throw Error(fmt::format("cannot write {}: no folder {}", r.warnings_out, folder.string()));
+    write_file_atomic(r.warnings_out, text);
     lines.push_back(fmt::format("wrote {} ({} warnings)\n", r.warnings_out, outcome.warnings.size()));
   }
   return lines;
