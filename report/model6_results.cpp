@@ -84,6 +84,16 @@ std::string model6_fit_json(const fitting::Model6FitResult& fit, const fitting::
                      {"extrapolated", r.extrapolated}});
   doc["strain_reach"] = reach;
   doc["strain_reach_ratio"] = options.extrapolation_ratio;
+  // The model's discrepancy each trial's prediction interval holds beside
+  // the parameters' and the velocity's part (SDs; trials[].prediction).
+  nlohmann::ordered_json disc = nlohmann::ordered_json::array();
+  for (const auto& d : fit.discrepancy)
+    disc.push_back({{"id", d.id},
+                    {"growth", d.growth},
+                    {"peak_force_sd_n", d.peak_force_n},
+                    {"time_to_peak_sd_s", d.time_to_peak_s},
+                    {"max_deformation_sd_m", d.max_deformation_m}});
+  doc["prediction_discrepancy"] = disc;
   doc["choice"] = {{"against", choice.rival},
                    {"chosen", choice.chosen},
                    {"evidence", choice.evidence},
