@@ -20,11 +20,18 @@
 // the training residual (noise SDs), the fit's time, the strains the fitted
 // column reaches, its elastic laws against the generator's, and the
 // largest held-out errors, and the held-out trials the fit flags as
-// extrapolations of a foam's law (fitting/model6_fit.h).
+// extrapolations of a foam's law (fitting/model6_fit.h). The prediction
+// intervals: per trial the errors of the peak force, time to peak and
+// largest travel in SEs as stated and without the model's discrepancy, a
+// machine-readable `ROW id train growth` line (per quantity: value, truth,
+// the parameters' and velocity's SE, the discrepancy's SD) and the time
+// the intervals take; at the end their coverage over all sessions.
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <ctime>
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
@@ -66,7 +73,12 @@ void score_intervals(const fitting::Model6FitResult& fit, const std::vector<fitt
   fitting::Model6FitResult bare = fit;
   fitting::Model6FitOptions bo = o;
   bo.model_discrepancy = false;
+  const auto t0 = std::chrono::steady_clock::now();
+  const std::clock_t c0 = std::clock();
   fitting::add_model6_prediction_intervals(data, bo, bare);
+  std::printf("  prediction intervals: %.3f s wall, %.3f s CPU (of the fit's %.2f s)\n",
+              std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+              static_cast<double>(std::clock() - c0) / CLOCKS_PER_SEC, fit.seconds);
   for (const TruthTrial& t : truth) {
     for (size_t k = 0; k < fit.trials.size(); ++k) {
       if (fit.trials[k].id != t.id) continue;
