@@ -21,11 +21,18 @@
 // the training residual (noise SDs), the fit's time, the strains the fitted
 // column reaches, its elastic laws against the generator's, and the
 // largest held-out errors, and the held-out trials the fit flags as
-// extrapolations of a foam's law (fitting/model6_fit.h).
+// extrapolations of a foam's law (fitting/model6_fit.h). The prediction
+// intervals: per trial the errors of the peak force, time to peak and
+// largest travel in SEs as stated and without the model's discrepancy, a
+// machine-readable `ROW id train growth` line (per quantity: value, truth,
+// the parameters' and velocity's SE, the discrepancy's SD) and the time
+// the intervals take; at the end their coverage over all sessions.
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <ctime>
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
@@ -47,8 +54,80 @@ namespace fs = std::filesystem;
 
 struct TruthTrial {
   std::string id;
-  double peak_n = 0.0, max_deformation_m = 0.0, offset_s = 0.0, velocity_m_s = 0.0;
+  double peak_n = 0.0, max_deformation_m = 0.0, offset_s = 0.0, velocity_m_s = 0.0, time_to_peak_s = 0.0;
 };
+
+// Coverage tallies of the 95 % prediction intervals: [held out, training]
+// x [with the model's discrepancy, parameters and velocity alone] x
+// [peak force, time to peak, largest travel]; n per [held out, training].
+struct Coverage {
+  int hit[2][2][3] = {};
+  int n[2] = {};
+  double z2[2][2][3] = {};
+};
+Coverage g_coverage;
+
+// Scores each trial's prediction intervals (as fitted, and again without
+// the discrepancy) against the truth; prints each trial's errors in SEs.
+void score_intervals(const fitting::Model6FitResult& fit, const std::vector<fitting::TrialData>& data,
+                     const fitting::Model6FitOptions& o, const std::vector<TruthTrial>& truth) {
+  fitting::Model6FitResult bare = fit;
+  fitting::Model6FitOptions bo = o;
+  bo.model_discrepancy = false;
+  const auto t0 = std::chrono::steady_clock::now();
+  const std::clock_t c0 = std::clock();
+  fitting::add_model6_prediction_intervals(data, bo, bare);
+  std::printf("  prediction intervals: %.3f s wall, %.3f s CPU (of the fit's %.2f s)\n",
+              std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+              static_cast<double>(std::clock() - c0) / CLOCKS_PER_SEC, fit.seconds);
+  for (const TruthTrial& t : truth) {
+    for (size_t k = 0; k < fit.trials.size(); ++k) {
+      if (fit.trials[k].id != t.id) continue;
+      const int tr = fit.trials[k].train ? 1 : 0;
+      const double g = k < fit.discrepancy.size() ? fit.discrepancy[k].growth : 1.0;
+      std::printf("    %s%s growth %.2f:", t.id.c_str(), tr ? "*" : " ", g);
+      ++g_coverage.n[tr];
+      for (int w = 0; w < 2; ++w) {
+        const fitting::Prediction& p = (w == 0 ? fit : bare).trials[k].prediction;
+        const fitting::PredictionInterval* iv[3] = {&p.peak_force_n, &p.time_to_peak_s, &p.max_deformation_m};
+        const double tv[3] = {t.peak_n, t.time_to_peak_s, t.max_deformation_m};
+        for (int q = 0; q < 3; ++q) {
+          const double z = (iv[q]->value - tv[q]) / iv[q]->se;
+          g_coverage.hit[tr][w][q] += std::abs(z) <= 1.959964 ? 1 : 0;
+          g_coverage.z2[tr][w][q] += std::isfinite(z) ? z * z : 1e4;
+          std::printf(" %s %+6.2f", w == 0 ? (q == 0 ? "z(peak,tpk,travel)" : "") : (q == 0 ? " | bare" : ""), z);
+        }
+      }
+      const fitting::Prediction& p = fit.trials[k].prediction;
+      const fitting::Prediction& b = bare.trials[k].prediction;
+      const fitting::Model6Discrepancy d = k < fit.discrepancy.size() ? fit.discrepancy[k] : fitting::Model6Discrepancy{};
+      // One machine-readable row per trial: per quantity value, truth, the
+      // parameters' and velocity's SE and the discrepancy's SD.
+      std::printf("\nROW %s %d %.4f %.8g %.8g %.6g %.6g %.8g %.8g %.6g %.6g %.8g %.8g %.6g %.6g", t.id.c_str(), tr, g,
+                  p.peak_force_n.value, t.peak_n, b.peak_force_n.se, d.peak_force_n, p.time_to_peak_s.value,
+                  t.time_to_peak_s, b.time_to_peak_s.se, d.time_to_peak_s, p.max_deformation_m.value,
+                  t.max_deformation_m, b.max_deformation_m.se, d.max_deformation_m);
+      std::printf("\n   ");
+      std::printf(" | se %.2f %% %.3f ms %.2f mm; err %+.2f %% %+.3f ms %+.2f mm\n", 100.0 * p.peak_force_n.se / t.peak_n,
+                  1e3 * p.time_to_peak_s.se, 1e3 * p.max_deformation_m.se,
+                  100.0 * (p.peak_force_n.value / t.peak_n - 1.0), 1e3 * (p.time_to_peak_s.value - t.time_to_peak_s),
+                  1e3 * (p.max_deformation_m.value - t.max_deformation_m));
+    }
+  }
+}
+
+void print_coverage() {
+  const char* q[3] = {"peak force", "time to peak", "max deformation"};
+  for (int tr = 0; tr < 2; ++tr)
+    for (int w = 0; w < 2; ++w) {
+      std::printf("coverage %s, %s (n %d):", tr ? "training" : "held out", w ? "parameters + velocity" : "with discrepancy",
+                  g_coverage.n[tr]);
+      for (int k = 0; k < 3; ++k)
+        std::printf(" %s %.1f %% (RMS z %.2f)", q[k], 100.0 * g_coverage.hit[tr][w][k] / std::max(1, g_coverage.n[tr]),
+                    std::sqrt(g_coverage.z2[tr][w][k] / std::max(1, g_coverage.n[tr])));
+      std::printf("\n");
+    }
+}
 
 struct Worst {
   double peak = 0.0, travel_m = 0.0, offset_s = 0.0, z = 0.0;
@@ -123,6 +202,7 @@ Worst scan(const std::string& label, const Session& session, const std::vector<T
     w.offset_s = std::max(w.offset_s, std::abs(doff));
     w.z = std::max(w.z, std::abs(z));
   }
+  score_intervals(fit, data, o, truth);
   compare_laws(fit, o, data, column);
   for (const auto& r : fit.reach)
     if (r.extrapolated) std::printf("  extrapolated: %s (top %.3f, base %.3f)\n", r.id.c_str(), r.max_top_strain, r.max_base_strain);
@@ -151,7 +231,7 @@ Worst scan_arg(const std::string& arg) {
                 so.foam->tau2_s, so.foam->viscosity_pa_s);
     const synth::SyntheticSession s = synth::make_session(so);
     std::vector<TruthTrial> tt;
-    for (const auto& t : s.truth.trials) tt.push_back({t.id, t.peak_force_n, t.max_deformation_m, t.video_offset_s, t.impact_velocity_m_s});
+    for (const auto& t : s.truth.trials) tt.push_back({t.id, t.peak_force_n, t.max_deformation_m, t.video_offset_s, t.impact_velocity_m_s, t.time_to_peak_s});
     return scan("seed " + arg, s.session, tt, &*so.foam);
   }
   const fs::path dir(arg);
@@ -159,7 +239,7 @@ Worst scan_arg(const std::string& arg) {
   const nlohmann::json truth = nlohmann::json::parse(in);
   std::vector<TruthTrial> tt;
   for (const auto& t : truth["trials"])
-    tt.push_back({t["id"], t["peak_force_n"], t["max_deformation_m"], t["video_offset_s"]});
+    tt.push_back({t["id"], t["peak_force_n"], t["max_deformation_m"], t["video_offset_s"], 0.0, t["time_to_peak_s"]});
   return scan(dir.filename().string(), capture::read_session((dir / "session").string()), tt);
 }
 
@@ -179,6 +259,7 @@ int main(int argc, char** argv) {
     }
     std::fflush(stdout);
   }
+  print_coverage();
   std::printf("all held out within: peak %.2f %%, travel %.2f mm, offset %.3f ms, |z| %.1f\n", 100.0 * all.peak,
               1e3 * all.travel_m, 1e3 * all.offset_s, all.z);
   return 0;

@@ -4,11 +4,8 @@
 #include <fmt/ranges.h>
 
 #include <algorithm>
-#include <cctype>
 #include <cmath>
-#include <filesystem>
-#include <fstream>
-#include <sstream>
+#include <map>
 
 #include "capture/tracking.h"
 #include "capture/text_io.h"
@@ -17,21 +14,6 @@
 namespace dropfit::capture {
 
 namespace {
-std::string trim(const std::string& s) {
-  std::size_t b = 0, e = s.size();
-  while (b < e && std::isspace(static_cast<unsigned char>(s[b]))) ++b;
-  while (e > b && std::isspace(static_cast<unsigned char>(s[e - 1]))) --e;
-  return s.substr(b, e - b);
-}
-
-std::vector<std::string> split_csv(const std::string& line) {
-  std::vector<std::string> out;
-  std::string field;
-  std::istringstream in(line);
-  while (std::getline(in, field, ',')) out.push_back(trim(field));
-  if (!line.empty() && line.back() == ',') out.emplace_back();
-  return out;
-}
 
 struct SeedRow {
   std::string point;
@@ -44,66 +26,39 @@ struct SeedRow {
 // order; blank and '#' lines skipped.
 std::vector<SeedRow> read_seed_rows(const std::string& path, const std::vector<std::string>& points,
                                     const std::vector<std::string>& names) {
-  std::ifstream in(path);
-  if (!in) throw InputError(path, 0, 0, "", "cannot open the seed file");
-  std::string line;
-  int line_no = 0;
-  std::vector<int> col;  // index of each of names
+  const std::vector<detail::Line> lines = detail::read_lines(path);
   const std::string expected = fmt::format("{}", fmt::join(names, ","));
-  const int n_cols = static_cast<int>(names.size());
+  std::vector<int> col;  // index of each of names
   std::vector<SeedRow> seeds;
-  while (std::getline(in, line)) {
-    ++line_no;
-    if (!line.empty() && line.back() == '\r') line.pop_back();
-    const std::string t = trim(line);
+  for (const detail::Line& line : lines) {
+    const std::string_view t = detail::trim(line.text);
     if (t.empty() || t[0] == '#') continue;
-    const auto fields = split_csv(t);
+    const std::vector<detail::Field> fields = detail::split_fields(line.text, ',');
     if (col.empty()) {
-      col.assign(names.size(), -1);
-      for (std::size_t i = 0; i < fields.size(); ++i) {
-        const auto it = std::find(names.begin(), names.end(), fields[i]);
-        if (it == names.end())
-          throw InputError(path, line_no, static_cast<int>(i) + 1, fields[i],
-                           "unknown column (expected " + expected + ")");
-        if (col[it - names.begin()] >= 0)
-          throw InputError(path, line_no, static_cast<int>(i) + 1, fields[i], "repeated column");
-        col[it - names.begin()] = static_cast<int>(i);
-      }
-      for (int k = 0; k < n_cols; ++k)
-        if (col[k] < 0) throw InputError(path, line_no, 0, names[k], "missing column (expected " + expected + ")");
+      const std::map<std::string, int> index = detail::header_columns(path, line, fields, names, false);
+      for (const std::string& name : names) col.push_back(index.at(name));
       continue;
     }
     if (fields.size() != names.size())
-      throw InputError(path, line_no, 0, "", fmt::format("expected {} fields, found {}", names.size(), fields.size()));
+      throw InputError(path, line.number, 0, "", fmt::format("expected {} fields, found {}", names.size(), fields.size()));
     SeedRow s;
-    s.line = line_no;
-    s.point = fields[col[0]];
-    if (std::find(points.begin(), points.end(), s.point) == points.end()) {
-      std::string known;
-      for (const auto& p : points) known += (known.empty() ? "" : ", ") + p;
-      throw InputError(path, line_no, col[0] + 1, "point",
-                       fmt::format("unknown point '{}' (not in [video].points: {})", s.point, known));
-    }
+    s.line = line.number;
+    const detail::Field& point = fields[col[0]];
+    s.point = point.text;
+    if (std::find(points.begin(), points.end(), s.point) == points.end())
+      throw InputError(path, line.number, point.column, "point",
+                       fmt::format("unknown point '{}' (not in [video].points: {})", s.point, fmt::join(points, ", ")));
     for (const SeedRow& other : seeds)
       if (other.point == s.point)
-        throw InputError(path, line_no, col[0] + 1, "point",
+        throw InputError(path, line.number, point.column, "point",
                          fmt::format("point '{}' already seeded on line {}", s.point, other.line));
-    auto number = [&](int k) {
-      const std::string& f = fields[col[k]];
-      try {
-        std::size_t used = 0;
-        const double v = std::stod(f, &used);
-        if (used != f.size() || !std::isfinite(v)) throw std::invalid_argument(f);
-        return v;
-      } catch (const std::exception&) {
-        throw InputError(path, line_no, col[k] + 1, names[k], fmt::format("'{}' is not a number", f));
-      }
-    };
-    const double frame = number(1);
+    const double frame = detail::parse_number(path, line.number, fields[col[1]], "frame", false);
     if (frame < 0 || frame != std::floor(frame) || frame > 1e9)
-      throw InputError(path, line_no, col[1] + 1, "frame", fmt::format("'{}' is not a frame number (0, 1, 2, ...)", fields[col[1]]));
+      throw InputError(path, line.number, fields[col[1]].column, "frame",
+                       fmt::format("'{}' is not a frame number (0, 1, 2, ...)", fields[col[1]].text));
     s.frame = static_cast<int>(frame);
-    for (int k = 2; k < n_cols; ++k) s.values.push_back(number(k));
+    for (std::size_t k = 2; k < names.size(); ++k)
+      s.values.push_back(detail::parse_number(path, line.number, fields[col[k]], names[k], false));
     seeds.push_back(s);
   }
   if (col.empty()) throw InputError(path, 0, 0, "", "empty seed file (expected the header " + expected + ")");

@@ -319,9 +319,12 @@ double shift_discrepancy_s(const Window& w, const std::vector<double>& grf, doub
 // The standard errors of the first kFree parameters (the logarithms) from
 // (J^T J)^-1 over every parameter block (the clock shifts included), scaled
 // by the residual variance when the fit is short of the noise (2 cost /
-// (n - p) above 1). NaN where J^T J is singular in that direction.
-Eigen::VectorXd log_standard_errors(ceres::Problem& problem, double cost, int n_residuals) {
+// (n - p) above 1). NaN where J^T J is singular in that direction. *cov:
+// their covariance, the pseudo-inverse over the directions above that
+// floor (a held coordinate's column of J is zero: its row and column 0).
+Eigen::VectorXd log_standard_errors(ceres::Problem& problem, double cost, int n_residuals, Eigen::MatrixXd* cov) {
   Eigen::VectorXd se = Eigen::VectorXd::Constant(kFree, kNaN);
+  *cov = Eigen::MatrixXd::Zero(kFree, kFree);
   ceres::CRSMatrix crs;
   double c = 0.0;
   if (!problem.Evaluate(ceres::Problem::EvaluateOptions{}, &c, nullptr, nullptr, &crs)) return se;
@@ -347,6 +350,11 @@ Eigen::VectorXd log_standard_errors(ceres::Problem& problem, double cost, int n_
     }
     if (ok) se[i] = std::sqrt(s2 * v);
   }
+  for (int k = 0; k < p; ++k)
+    if (lam[k] > floor) {
+      const Eigen::VectorXd q = eig.eigenvectors().col(k).head(std::min(kFree, p));
+      cov->topLeftCorner(q.size(), q.size()) += (s2 / lam[k]) * q * q.transpose();
+    }
   return se;
 }
 
@@ -708,7 +716,9 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   res.cost = summary.final_cost;
   res.n_residuals = n_res;
   res.iterations = iterations;
-  const Eigen::VectorXd log_se = log_standard_errors(problem, summary.final_cost, n_res);
+  const Eigen::VectorXd log_se = log_standard_errors(problem, summary.final_cost, n_res, &res.coordinate_covariance);
+  res.coordinates = Eigen::Map<const Eigen::VectorXd>(u, kFree);
+  res.free_exponent = free_exponent;
   for (int i = 0; i < kFree; ++i) {
     if (i == kExponent && !free_exponent) continue;  // held: a fixed number of the law, not an estimate
     ParameterEstimate e;
@@ -745,8 +755,15 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
     res.trials.push_back(std::move(rep));
   }
   check_extrapolation(trials, options, res);
+  add_model6_prediction_intervals(trials, options, res);
   res.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return res;
+}
+
+Model6Params model6_params_at(const Eigen::VectorXd& coordinates, const Model6FitOptions& options,
+                              bool free_exponent) {
+  if (coordinates.size() != kFree) throw Error(fmt::format("model6_params_at: {} coordinates, not {}", coordinates.size(), kFree));
+  return to_params(coordinates.data(), options, free_exponent);
 }
 
 }  // namespace dropfit::fitting

@@ -100,6 +100,12 @@ struct Model6FitOptions {
   // e_d that is about the strain's ratio, near e_d a few hundredths of
   // strain more.
   double extrapolation_ratio = 1.5;
+  // Prediction intervals (add_model6_prediction_intervals): with the
+  // model's discrepancy (the training trials' own misfit in each quantity,
+  // grown with how far a trial drives a foam beyond their reach) beside
+  // the parameters' covariance and the trial's velocity; false: those two
+  // alone.
+  bool model_discrepancy = true;
   // Set (by another thread) to stop the fit: fit_model6 then throws Error
   // after the solver iteration under way. Null: runs to the end.
   const std::atomic<bool>* cancel = nullptr;
@@ -118,6 +124,17 @@ struct Model6Reach {
   bool extrapolated = false;
 };
 
+// The model's discrepancy in one trial's predicted quantities (SDs, added
+// in quadrature to the parameters' and the velocity's part of the
+// prediction interval): the training trials' misfit in the quantity times
+// `growth`, the trial's reach over the training trials' in the
+// densification coordinate (1 within their reach).
+struct Model6Discrepancy {
+  std::string id;
+  double growth = 1.0;
+  double peak_force_n = 0.0, time_to_peak_s = 0.0, max_deformation_m = 0.0;
+};
+
 struct Model6FitResult {
   Model6Params params;
   std::vector<std::string> train_ids;
@@ -125,8 +142,17 @@ struct Model6FitResult {
   // freed it), SEs from (J^T J)^-1 scaled by the residual
   // variance when above the noise (delta method from the logarithms).
   std::vector<ParameterEstimate> estimates;
-  std::vector<TrialReport> trials;           // every trial predicted (train: its fitted dt_c)
+  // The fit's coordinates (the logarithms of free_names' parameters, the
+  // densification exponent as log(n - 1), always 15) and their covariance
+  // (kept for the prediction intervals: the held exponent's row is zero).
+  Eigen::VectorXd coordinates;
+  Eigen::MatrixXd coordinate_covariance;
+  bool free_exponent = false;
+  // every trial predicted (train: its fitted dt_c), each with its 95 %
+  // prediction intervals (TrialReport::prediction)
+  std::vector<TrialReport> trials;
   std::vector<Model6Reach> reach;            // every trial's, in the order of trials
+  std::vector<Model6Discrepancy> discrepancy;  // every trial's, in the order of trials (empty: none added)
   // One per extrapolated trial: which foam it drives how far beyond the
   // training reach (its prediction's error can exceed the training fit's).
   std::vector<std::string> warnings;
@@ -142,5 +168,21 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
 
 // One trial predicted from its own impact velocity; only dt_c is fitted.
 TrialReport predict_model6(const TrialData& trial, const Model6Params& params, const Model6FitOptions& options);
+
+// The parameters at the fit's coordinates (Model6FitResult::coordinates).
+Model6Params model6_params_at(const Eigen::VectorXd& coordinates, const Model6FitOptions& options,
+                              bool free_exponent);
+
+// Every trial's prediction (res.trials[].prediction): peak force, time to
+// peak (from the face's contact), largest face travel and the force band
+// on the trial's samples with 95 % intervals from the coordinates'
+// covariance (central differences through simulate_model6), the trial's
+// impact velocity SE (a held-out trial's: a training trial's own velocity
+// error is absorbed by the fit) and, with options.model_discrepancy, the
+// model's discrepancy (res.discrepancy). Needs res.reach and the training
+// trials' reports; fit_model6 calls it. A trial whose simulation fails
+// keeps no intervals and gets a warning. Reads no file.
+void add_model6_prediction_intervals(const std::vector<TrialData>& trials, const Model6FitOptions& options,
+                                     Model6FitResult& res);
 
 }  // namespace dropfit::fitting

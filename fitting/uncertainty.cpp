@@ -12,14 +12,11 @@
 #include <utility>
 
 #include "core/parallel.h"
+#include "fitting/detail/summary.h"
 #include "fitting/model5_impl.h"
 #include "fitting/models_impl.h"
 
 namespace dropfit::fitting::internal {
-
-namespace {
-constexpr double kZ95 = 1.959964;  // the normal's two-sided 95 % quantile
-}  // namespace
 
 void covariance(const Optimum& opt, const ParamSpace& space, const FitOptions& o, const MatParams& mp,
                 const ErrorBudget& budget, std::vector<ParameterEstimate>* est, std::vector<double>* shift_se,
@@ -224,15 +221,6 @@ void mark_model_limited(FitResult* res) {
     }
 }
 
-namespace {
-
-// The three summary numbers of a simulated contact: peak force and its time
-// (a parabola through the highest sample and its neighbours, so that they
-// move smoothly with the parameters) and the largest impactor travel.
-struct Summary {
-  double peak_n = kNaN, t_peak_s = kNaN, max_travel_m = kNaN;
-};
-
 double parabola_top(const Eigen::VectorXd& y, Eigen::Index i, double* offset) {
   *offset = 0.0;
   if (i <= 0 || i + 1 >= y.size()) return y[i];
@@ -257,8 +245,6 @@ Summary summarise(const Simulation& s) {
   return out;
 }
 
-// A simulated force on a trial's samples (shifted by its clock shift) from
-// the fine output grid, linearly.
 Eigen::VectorXd force_on_samples(const Simulation& s, const Eigen::VectorXd& t_s, double shift, double h) {
   const Eigen::Index n = t_s.size();
   Eigen::VectorXd f = Eigen::VectorXd::Zero(n);
@@ -276,6 +262,8 @@ Eigen::VectorXd force_on_samples(const Simulation& s, const Eigen::VectorXd& t_s
   }
   return f;
 }
+
+namespace {
 
 // What a held-out quantity's interval is built from: the fitted
 // coordinates' covariance and their covariance with the session's scale

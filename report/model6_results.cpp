@@ -84,6 +84,15 @@ std::string model6_fit_json(const fitting::Model6FitResult& fit, const fitting::
                      {"extrapolated", r.extrapolated}});
   doc["strain_reach"] = reach;
   doc["strain_reach_ratio"] = options.extrapolation_ratio;
+  // The model's discrepancy each trial's prediction interval holds beside
+  // the parameters' and the velocity's part (SDs), in its prediction.
+  for (auto& t : doc["trials"])
+    for (const auto& d : fit.discrepancy)
+      if (t["id"] == d.id)
+        t["prediction"]["discrepancy"] = {{"growth", d.growth},
+                                          {"peak_force_sd_n", d.peak_force_n},
+                                          {"time_to_peak_sd_s", d.time_to_peak_s},
+                                          {"max_deformation_sd_m", d.max_deformation_m}};
   doc["choice"] = {{"against", choice.rival},
                    {"chosen", choice.chosen},
                    {"evidence", choice.evidence},

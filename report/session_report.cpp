@@ -179,6 +179,24 @@ void trials_section(HtmlDocument& doc, const SessionReport& r) {
   }
 }
 
+// Each trial's predicted quantities with their 95 % intervals (parameters,
+// the trial's own velocity and the calibration's scale; Model 6's also the
+// model's discrepancy).
+void predictions_table(HtmlDocument& doc, const fitting::FitResult& fit, const std::string& caption) {
+  std::vector<std::vector<std::string>> rows;
+  for (const auto& t : fit.trials) {
+    const auto& p = t.prediction;
+    if (!std::isfinite(p.peak_force_n.se)) continue;
+    auto iv = [](const fitting::PredictionInterval& i, double scale, int digits) {
+      return fmt::format("{} [{}, {}]", num(i.value * scale, digits), num(i.low * scale, digits), num(i.high * scale, digits));
+    };
+    rows.push_back({t.id + (t.train ? " (train)" : ""), iv(p.peak_force_n, 1.0, 0), num(t.measured.peak_force_n, 0),
+                    iv(p.time_to_peak_s, 1e3, 1), iv(p.max_deformation_m, 1e3, 1)});
+  }
+  if (rows.empty()) return;
+  doc.table({"trial", "peak force (N)", "measured (N)", "time to peak (ms)", "max deformation (mm)"}, rows, caption, 1);
+}
+
 void parameters_section(HtmlDocument& doc, const SessionReport& r) {
   if (r.fits.empty()) return;
   doc.heading("Fitted parameters");
@@ -230,23 +248,11 @@ void parameters_section(HtmlDocument& doc, const SessionReport& r) {
   }
   doc.table(h2, rows2, "Simulated minus measured, each trial predicted from its own impact velocity", 1);
 
-  // Each trial's predicted quantities with their 95 % intervals (parameters,
-  // the trial's own velocity and the calibration's scale).
-  for (const auto& fit : r.fits) {
-    std::vector<std::vector<std::string>> rows4;
-    for (const auto& t : fit.trials) {
-      const auto& p = t.prediction;
-      if (!std::isfinite(p.peak_force_n.se)) continue;
-      auto iv = [](const fitting::PredictionInterval& i, double scale, int digits) {
-        return fmt::format("{} [{}, {}]", num(i.value * scale, digits), num(i.low * scale, digits), num(i.high * scale, digits));
-      };
-      rows4.push_back({t.id + (t.train ? " (train)" : ""), iv(p.peak_force_n, 1.0, 0), num(t.measured.peak_force_n, 0),
-                       iv(p.time_to_peak_s, 1e3, 1), iv(p.max_deformation_m, 1e3, 1)});
-    }
-    if (rows4.empty()) continue;
-    doc.table({"trial", "peak force (N)", "measured (N)", "time to peak (ms)", "max deformation (mm)"}, rows4,
-              fmt::format("Model {} predictions with 95 % intervals", static_cast<int>(fit.model)), 1);
-  }
+  for (const auto& fit : r.fits)
+    predictions_table(doc, fit, fmt::format("Model {} predictions with 95 % intervals", static_cast<int>(fit.model)));
+  if (r.final_fit && r.final_label == "model6")
+    predictions_table(doc, *r.final_fit,
+                      "Model 6 predictions with 95 % intervals (parameters, velocity and the model's discrepancy)");
 
   for (const auto& fit : r.fits) {
     if (fit.sensitivity.empty()) continue;

@@ -1,0 +1,256 @@
+// Model 6's prediction intervals (fitting/model6_fit.h,
+// add_model6_prediction_intervals).
+//
+// A predicted quantity q (peak force, time to peak, largest face travel,
+// the force at each sample) of a trial errs by
+//   q_hat - q = g_u' (u_hat - u) + g_v e_v + d,
+// the fitted coordinates' error (covariance from the fit, g_u by central
+// differences through simulate_model6), the trial's impact velocity error
+// e_v (its measured SE; a training trial's is absorbed by the fit, whose
+// parameters reproduce the measured force at the measured velocity) and
+// the model's discrepancy d: a foam law of the wrong shape, which the
+// parameters' covariance (from the noise, scaled by the training residual)
+// does not hold. d's SD is the training trials' own misfit around the
+// quantity's peak (simulated less measured, above the noise: the one place
+// the data show how far the column's shape is from the mat's) times the
+// trial's growth: how far it drives either foam beyond the training
+// trials' reach in the densification coordinate r = e / (e_d - e), to the
+// power n of the densification term (1 within their reach; the law beyond
+// it is the fit's extrapolation, and its error grows as the stress taken
+// from there).
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "core/error.h"
+#include "core/parallel.h"
+#include "fitting/detail/summary.h"
+#include "fitting/model6_fit.h"
+
+namespace dropfit::fitting {
+namespace {
+
+using internal::kZ95;
+
+constexpr int kExponent = 14;  // log(n - 1), the last coordinate
+
+double densification_coordinate(double strain, const FoamLaw& law) {
+  return strain / std::max(law.densification_strain - strain, 1e-3);
+}
+
+// The simulation of one trial on the fit's grid (the trial's sample step
+// over options.oversample, so the integrator takes the fit's steps).
+struct TrialGrid {
+  Impact impact;
+  double h = 0.0;
+};
+
+TrialGrid grid_of(const TrialData& td, const TrialReport& rep, const Model6FitOptions& o) {
+  const Eigen::Index n = td.t_s.size();
+  if (n < 3) throw Error(fmt::format("trial {}: too few samples for a prediction", td.id));
+  TrialGrid g;
+  g.h = (td.t_s[n - 1] - td.t_s[0]) / static_cast<double>(n - 1) / std::max(1, o.oversample);
+  g.impact.mass_kg = td.impactor_mass_kg;
+  g.impact.gravity_m_s2 = td.gravity_m_s2;
+  g.impact.velocity_m_s = td.impact_velocity_m_s;
+  g.impact.first_output_s = 0.0;
+  g.impact.output_dt_s = g.h;
+  g.impact.duration_s = std::max(rep.window_end_s, 0.02) + 0.005;
+  return g;
+}
+
+// The parameter and velocity part: each quantity's gradient in the free
+// coordinates and the velocity, and its variance.
+struct Propagated {
+  internal::Summary value;
+  Eigen::VectorXd force;                // on the trial's samples
+  Eigen::Vector3d var = Eigen::Vector3d::Zero();  // peak, time to peak, travel
+  Eigen::VectorXd force_var;
+  // The peak's time scale sqrt(F / |F''|): a relative misfit e of the force
+  // around the peak moves its time by about e times this.
+  double peak_width_s = 0.0;
+};
+
+Propagated propagate(const TrialData& td, const TrialReport& rep, const Model6FitResult& res,
+                     const Model6FitOptions& o) {
+  const TrialGrid grid = grid_of(td, rep, o);
+  std::vector<int> free;
+  for (int j = 0; j < res.coordinates.size(); ++j)
+    if (j != kExponent || res.free_exponent) free.push_back(j);
+  const int np = static_cast<int>(free.size());
+  auto run = [&](const Eigen::VectorXd& u, double v) {
+    Impact imp = grid.impact;
+    imp.velocity_m_s = v;
+    return simulate_model6(model6_params_at(u, o, res.free_exponent), o.geometry, imp);
+  };
+  const double v0 = td.impact_velocity_m_s, shift = rep.contact_shift_s;
+  const Simulation s0 = run(res.coordinates, v0);
+  Propagated out;
+  out.value = internal::summarise(s0);
+  out.force = internal::force_on_samples(s0, td.t_s, shift, grid.h);
+  Eigen::Index ip = 0;
+  s0.grf_n.maxCoeff(&ip);
+  if (ip > 0 && ip + 1 < s0.grf_n.size()) {
+    const double curv = (s0.grf_n[ip - 1] - 2.0 * s0.grf_n[ip] + s0.grf_n[ip + 1]) / (grid.h * grid.h);
+    if (curv < 0.0) out.peak_width_s = std::sqrt(s0.grf_n[ip] / -curv);
+  }
+  const Eigen::Index n = td.t_s.size();
+  Eigen::MatrixXd g(3, np + 1), gf(n, np + 1);
+  for (int j = 0; j <= np; ++j) {
+    Eigen::VectorXd up = res.coordinates, um = up;
+    double vp = v0, vm = v0, step;
+    if (j < np) {
+      step = 1e-3;  // in the logarithm: 0.1 % of the parameter
+      up[free[j]] += step, um[free[j]] -= step;
+    } else {
+      step = 1e-3 * std::max(v0, 0.1);
+      vp += step, vm -= step;
+    }
+    const Simulation sp = run(up, vp), sm = run(um, vm);
+    const internal::Summary qp = internal::summarise(sp), qm = internal::summarise(sm);
+    g.col(j) << (qp.peak_n - qm.peak_n) / (2.0 * step), (qp.t_peak_s - qm.t_peak_s) / (2.0 * step),
+        (qp.max_travel_m - qm.max_travel_m) / (2.0 * step);
+    gf.col(j) = (internal::force_on_samples(sp, td.t_s, shift, grid.h) -
+                 internal::force_on_samples(sm, td.t_s, shift, grid.h)) /
+                (2.0 * step);
+  }
+  Eigen::MatrixXd cov = Eigen::MatrixXd::Zero(np + 1, np + 1);
+  for (int a = 0; a < np; ++a)
+    for (int b = 0; b < np; ++b) cov(a, b) = res.coordinate_covariance(free[a], free[b]);
+  const double sv = std::isfinite(td.impact_velocity_se_m_s) ? td.impact_velocity_se_m_s : 0.0;
+  const double scale = std::isfinite(td.calibration_scale_sd) ? td.calibration_scale_sd * v0 : 0.0;
+  if (!rep.train) cov(np, np) = sv * sv + scale * scale;
+  for (int k = 0; k < 3; ++k) out.var[k] = std::max(g.row(k).dot(cov * g.row(k).transpose()), 0.0);
+  out.force_var = (gf * cov).cwiseProduct(gf).rowwise().sum().cwiseMax(0.0);
+  return out;
+}
+
+// A channel's misfit around its peak: the RMS of simulated less measured
+// over the contact's samples where the measured value is above half its
+// largest, less the noise in quadrature (the structure a single value
+// there carries; the whole window's RMS is diluted by the flat start and
+// tail, which any column fits).
+double excess_near_peak(const Eigen::VectorXd& t_s, const Eigen::VectorXd& measured, const Eigen::VectorXd& simulated,
+                        double end_s, double noise) {
+  if (measured.size() != t_s.size() || simulated.size() != t_s.size()) return 0.0;
+  double top = -1e300;
+  for (Eigen::Index i = 0; i < t_s.size(); ++i)
+    if (t_s[i] >= 0.0 && t_s[i] <= end_s && std::isfinite(measured[i])) top = std::max(top, measured[i]);
+  double ss = 0.0;
+  int n = 0;
+  for (Eigen::Index i = 0; i < t_s.size(); ++i)
+    if (t_s[i] >= 0.0 && t_s[i] <= end_s && std::isfinite(measured[i]) && measured[i] > 0.5 * top) {
+      const double d = simulated[i] - measured[i];
+      ss += d * d, ++n;
+    }
+  return n > 0 ? std::sqrt(std::max(ss / n - noise * noise, 0.0)) : 0.0;
+}
+
+// The training trials' misfit (RMS over them) in the peak force (a share
+// of the measured peak: the misfit around the force's peak in quadrature
+// with the peak's own difference) and the largest travel (the misfit
+// around the travel's peak: the measured largest travel is the top of a
+// channel as noisy as a marker, biased by that noise). The time to peak's
+// is the peak's share times the peak's width where it is used (the
+// measured time to peak is read on the plate's samples, too coarse to show
+// the column's misfit).
+Model6Discrepancy training_misfit(const std::vector<TrialData>& trials, const Model6FitOptions& o,
+                                  const Model6FitResult& res) {
+  Model6Discrepancy d;
+  int n = 0;
+  for (const TrialReport& r : res.trials) {
+    if (!r.train) continue;
+    const auto td = std::find_if(trials.begin(), trials.end(), [&](const TrialData& t) { return t.id == r.id; });
+    if (td == trials.end()) continue;
+    const double fn = std::isfinite(td->force_noise_n) ? td->force_noise_n : o.force_noise_n;
+    const double xn = std::isfinite(td->marker_noise_m) ? td->marker_noise_m : o.marker_noise_m;
+    const Simulation& s = r.simulation;
+    const double f_excess = excess_near_peak(td->t_s, td->grf_n, s.grf_n, r.window_end_s, fn);
+    const double x_excess = excess_near_peak(td->t_s, td->impactor_m, s.impactor_m, r.window_end_s, xn);
+    const double peak = r.measured.peak_force_n;
+    const double dp = std::isfinite(r.comparison.peak_force_pct_diff) ? 0.01 * r.comparison.peak_force_pct_diff : 0.0;
+    d.peak_force_n += dp * dp + (f_excess / peak) * (f_excess / peak);
+    d.max_deformation_m += x_excess * x_excess;
+    ++n;
+  }
+  if (n == 0) return d;
+  d.peak_force_n = std::sqrt(d.peak_force_n / n);  // a share of the peak here
+  d.max_deformation_m = std::sqrt(d.max_deformation_m / n);
+  return d;
+}
+
+// How far a trial drives either foam beyond the training trials' reach in
+// r = e / (e_d - e): the larger ratio of the two foams, at least 1, to the
+// power of the densification exponent n (the densification stress goes as
+// r^n, and with it what a law of the wrong shape there gets wrong).
+double reach_growth(const Model6Reach& r, const Model6FitResult& res) {
+  double top = 0.0, base = 0.0;
+  for (const Model6Reach& t : res.reach)
+    if (t.train) top = std::max(top, t.max_top_strain), base = std::max(base, t.max_base_strain);
+  const double rt = densification_coordinate(top, res.params.top);
+  const double rb = densification_coordinate(base, res.params.base);
+  double g = 1.0;
+  if (rt > 0.0) g = std::max(g, densification_coordinate(r.max_top_strain, res.params.top) / rt);
+  if (rb > 0.0) g = std::max(g, densification_coordinate(r.max_base_strain, res.params.base) / rb);
+  return std::pow(g, res.params.top.densification_exponent);
+}
+
+PredictionInterval interval(double value, double variance) {
+  PredictionInterval pi;
+  pi.value = value;
+  pi.se = std::sqrt(variance);
+  pi.low = value - kZ95 * pi.se;
+  pi.high = value + kZ95 * pi.se;
+  return pi;
+}
+
+}  // namespace
+
+void add_model6_prediction_intervals(const std::vector<TrialData>& trials, const Model6FitOptions& options,
+                                     Model6FitResult& res) {
+  res.discrepancy.clear();
+  if (res.coordinates.size() != 15 || res.coordinate_covariance.rows() != 15) return;
+  const Model6Discrepancy misfit = training_misfit(trials, options, res);
+  std::vector<char> failed(res.trials.size(), 0);
+  std::vector<Model6Discrepancy> disc(res.trials.size());
+  parallel_for(res.trials.size(), 2, [&](std::size_t q) {
+    TrialReport& rep = res.trials[q];
+    const auto td = std::find_if(trials.begin(), trials.end(), [&](const TrialData& t) { return t.id == rep.id; });
+    if (td == trials.end()) return;
+    try {
+      const Propagated p = propagate(*td, rep, res, options);
+      Model6Discrepancy& d = disc[q];
+      d.id = rep.id;
+      if (options.model_discrepancy) {
+        const auto r = std::find_if(res.reach.begin(), res.reach.end(), [&](const Model6Reach& x) { return x.id == rep.id; });
+        d.growth = r == res.reach.end() ? 1.0 : reach_growth(*r, res);
+        d.peak_force_n = misfit.peak_force_n * p.value.peak_n * d.growth;
+        d.time_to_peak_s = misfit.peak_force_n * p.peak_width_s * d.growth;
+        d.max_deformation_m = misfit.max_deformation_m * d.growth;
+      }
+      Prediction& out = rep.prediction;
+      out.peak_force_n = interval(p.value.peak_n, p.var[0] + d.peak_force_n * d.peak_force_n);
+      out.time_to_peak_s = interval(p.value.t_peak_s, p.var[1] + d.time_to_peak_s * d.time_to_peak_s);
+      out.max_deformation_m = interval(p.value.max_travel_m, p.var[2] + d.max_deformation_m * d.max_deformation_m);
+      // The band: each sample's share of the peak's discrepancy in
+      // proportion to its force.
+      const double rel = p.value.peak_n > 0.0 ? d.peak_force_n / p.value.peak_n : 0.0;
+      const Eigen::ArrayXd sd = (p.force_var.array() + (rel * p.force.array()).square()).sqrt();
+      out.force_low_n = p.force.array() - kZ95 * sd;
+      out.force_high_n = p.force.array() + kZ95 * sd;
+    } catch (const Error&) {
+      failed[q] = 1;
+    }
+  });
+  for (std::size_t q = 0; q < res.trials.size(); ++q) {
+    if (failed[q])
+      res.warnings.push_back(fmt::format("trial {}: no prediction intervals (the column's simulation failed)",
+                                         res.trials[q].id));
+    else if (options.model_discrepancy && !disc[q].id.empty())
+      res.discrepancy.push_back(disc[q]);
+  }
+}
+
+}  // namespace dropfit::fitting
