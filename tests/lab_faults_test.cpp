@@ -14,9 +14,11 @@
 #include <iostream>
 #include <string>
 
+#include "capture/io.h"
 #include "diagnosis/diagnosis.h"
 #include "pipeline/pipeline.h"
 #include "samples/generator/synth.h"
+#include "support/shared_data.h"
 
 namespace dropfit {
 namespace {
@@ -475,6 +477,42 @@ TEST(LabFaults, OneCameraLosingAFrameIsTheFirstReason) {
   for (const auto& t : trials_of(independent_session(42)).trials) {
     ASSERT_EQ(t.trajectories.camera_lags.size(), 1u);
     EXPECT_FALSE(t.trajectories.camera_lags[0].changes_part_way()) << t.result.id;
+  }
+}
+
+// ---- The shared sessions: no step, no lag change ------------------------------
+
+// On ../shared v1-v6 and c1-c6 (independent worlds, clean instruments or
+// faults of other kinds) no channel steps and no camera's lag changes: the
+// largest excess over a drift, 100-400 ms after the contact's end, is under
+// 1.5 noise SDs (8 name a step), and no trial is rejected for a lag change.
+TEST(LabFaults, SharedSessionsHaveNoStepNorLagChange) {
+  const std::vector<std::string> sessions{"validation/v1-realistic", "validation/v2-linear-control",
+                                          "validation/v3-hysteresis", "validation/v4-rate",
+                                          "validation/v5-outlier-lens-offset", "validation/v6-formats-drift-scale",
+                                          "validation-continuum/c1-foam", "validation-continuum/c2-foam",
+                                          "validation-continuum/c3-saturation", "validation-continuum/c4-softening",
+                                          "validation-continuum/c5-lowpass-offset",
+                                          "validation-continuum/c6-second-impact-drift"};
+  for (const std::string& name : sessions) {
+    const auto dir = testsupport::shared_path(name) / "session";
+    DROPFIT_NEED_SHARED(dir);
+    const pipeline::SessionState state = trials_of(capture::read_session(dir.string()));
+    for (const auto& t : state.trials) {
+      EXPECT_EQ(t.result.reject_reason.find("steps by"), std::string::npos) << name << " " << t.result.reject_reason;
+      if (t.force) {
+        const double from = t.result.end_time_s + 0.1;
+        const forceplate::ChannelStep step = forceplate::find_channel_step(*t.force, from, from + 0.3);
+        EXPECT_LT(step.excess_noise_ratio, 1.5) << name << " " << t.result.id << " " << step.channel;
+      }
+      for (const auto& lag : t.trajectories.camera_lags) {
+        if (std::getenv("DROPFIT_SHOW"))
+          std::cerr << name << " " << t.result.id << ": " << (lag.changes_part_way() ? "split" : "one lag") << ", lags " << lag.lag_before << " / " << lag.lag_after
+                    << " at row " << lag.change_row << ", split " << lag.split_rms_px << " px, one lag "
+                    << lag.rms_px(lag.best_lag) << " px\n";
+        EXPECT_EQ(t.result.reject_reason.find("frame at its row"), std::string::npos) << t.result.reject_reason;
+      }
+    }
   }
 }
 
