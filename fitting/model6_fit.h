@@ -52,7 +52,14 @@ struct Model6FitOptions {
   // 0.25 ms steps: within 0.3 % of the peak of a 15 + 11 element column.
   Model6Geometry geometry{0.0625, 0.11, 0.08, 5, 3, 2.5e-4};
   double top_mass_kg = 2.4, base_mass_kg = 3.6;
-  std::vector<std::string> train_ids;  // empty: the accepted trial with the median impact velocity
+  // Empty: the accepted trial with the highest impact velocity. A foam's
+  // law is nonlinear in strain (a plateau, then densification) and a trial
+  // shows it only up to the strain it reaches: trained on the deepest
+  // impact, every other trial is predicted inside the strains the law was
+  // fitted on. Trained on a mid-range trial, the faster trials extrapolate
+  // each foam's densification, and a law of the wrong shape there misses
+  // their peaks by several per cent (docs/models.md).
+  std::vector<std::string> train_ids;
   double densification_exponent = 2.0;
   double force_noise_n = 20.0;       // fallbacks when a trial carries no measured noise
   double marker_noise_m = 5e-4;

@@ -2,6 +2,7 @@
 #include "pipeline/model6_stage.h"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <algorithm>
 #include <cmath>
@@ -111,11 +112,9 @@ std::optional<fitting::Model6FitResult> EarlyModel6::take(const std::vector<fitt
   return std::move(fit_);
 }
 
-void start_model6_early(const SessionState& state, EarlyModel6& early, const fitting::FitResult& current,
-                        double force_sd, double impactor_sd, const diagnosis::PlateCorrection& correction) {
+void start_model6_early(const SessionState& state, EarlyModel6& early, double force_sd, double impactor_sd, const diagnosis::PlateCorrection& correction) {
   if (early.started() || !(std::max(force_sd, impactor_sd) > kEarlyModel6NoiseSd)) return;
   fitting::Model6FitOptions options = model6_options(state.session.manifest);
-  options.train_ids = current.train_ids;
   early.start(accepted_data(corrected_fit_data(state, correction)), std::move(options));
 }
 
@@ -126,7 +125,6 @@ void consider_model6(SessionState& state, EarlyModel6* early) {
   const fitting::FitResult& rival = *state.final_fit();
   stage.rival = state.final_label();
   stage.options = model6_options(state.session.manifest);
-  stage.options.train_ids = rival.train_ids;
   const std::vector<fitting::TrialData> data = accepted_data(state.fit_data);
   try {
     std::optional<fitting::Model6FitResult> fit;
@@ -150,8 +148,8 @@ void consider_model6(SessionState& state, EarlyModel6* early) {
       stage.heldout_force_sd <= mo.unexplained_noise_sd && stage.heldout_impactor_sd <= mo.unexplained_noise_sd;
   stage.reason = fmt::format(
       "the final lumped model ({}) leaves the held-out residual above the noise, so Model 6 (the foam column) was "
-      "fitted on the same training trial ({:.2f} s): {}{}",
-      stage.rival, stage.fit->seconds, stage.choice->evidence,
+      "fitted on the deepest impact, {} ({:.2f} s): {}{}",
+      stage.rival, fmt::join(stage.fit->train_ids, ", "), stage.fit->seconds, stage.choice->evidence,
       stage.chosen ? (stage.reaches_noise ? "; Model 6 is the final model and reaches the noise"
                                           : fmt::format("; Model 6 is the final model but does not reach the noise "
                                                         "either (held-out force {:.2f}, travel {:.2f} noise SDs)",

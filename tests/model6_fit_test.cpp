@@ -1,5 +1,6 @@
 // Model 6 (the foam column) fitted on continuum-mat sessions, trained on
-// the median-velocity trial and predicting the others, against the truth:
+// the deepest impact (the fastest trial, as the pipeline trains it) and
+// predicting the others, against the truth:
 //   - ../shared/validation-continuum c1 and c2 (a world that shares no code
 //     with dropfit; read in place, skipped without ../shared, failing under
 //     CI=true);
@@ -8,18 +9,13 @@
 // Asserted on c1 and c2, per trial: the held-out peak force within 2 % of
 // the truth, the maximum face travel within 1.5 mm, the video-force clock
 // offset from the fitted contact instant within 0.3 ms; and the training
-// fit near the noise (RMS under 4 noise SDs on both channels: 1.9 and 1.1
-// on c1, 3.3 and 1.4 on c2, whose plate noise is a few newtons). On the
-// generator's foam (its densification (e_d / (e_d - e))^n - 1 over an
+// fit near the noise (RMS under 4 noise SDs on both channels: 2.0 and 0.9
+// on c1, 2.8 and 1.0 on c2, whose plate noise is a few newtons). The
+// generator's foams (densification (e_d / (e_d - e))^n - 1 over an
 // exponential plateau, not Model 6's tanh plateau and (e / (e_d - e))^n)
-// the targets hold on some foams and not on others: seed 2407 trains to
-// 3.6 and 0.9 noise SDs and predicts peaks within 0.2 %, travel within
-// 0.15 mm, offsets within 0.05 ms; seed 2401 (densification exponents 1.84
-// and 1.76), fitted with the exponent held at 2, trained to 13 and 5 noise
-// SDs and predicted peaks within 6.4 %; with the exponent freed (1.77
-// fitted) it trains to 2.1 and 1.1 and predicts peaks within 1.1 %, travel
-// within 0.15 mm, offsets within 0.11 ms. Both asserted at the c1/c2
-// targets.
+// are asserted at the same held-out targets; their deepest impact shows
+// the two laws' different densification, so the training force is held
+// to 8 noise SDs (seeds 2401, 2407, 2425: 6.7, 5.9, 4.7; travel 0.7-1.3).
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
@@ -143,49 +139,44 @@ void check_generator(std::uint64_t seed, const Tolerance& tol, fitting::Model6Fi
   check_session(s.session, tt, tol, out);
 }
 
-// Seed 2401's fastest trial (5.95 m/s, trained at 4.67) drives the base
-// foam to about twice the training trial's strain: its prediction
-// extrapolates the base law and says so; the other held-out trials
-// (4.43-4.97 m/s) stay within the training reach.
+const Tolerance kGeneratorFoam{0.02, 1.5e-3, 3e-4, 8.0, 4.0};
+
+// Seed 2401: trained on its fastest trial (trial2, 5.95 m/s; the others
+// 4.43-4.97 m/s), which takes the base foam to 0.40 strain, about twice
+// what the others reach: every held-out trial lies inside the training
+// reach, none is flagged as an extrapolation.
 TEST(Model6Fit, GeneratorFoam) {
   fitting::Model6FitResult fit;
-  check_generator(2401, Tolerance{}, &fit);
+  check_generator(2401, kGeneratorFoam, &fit);
+  ASSERT_EQ(fit.train_ids, std::vector<std::string>{"trial2"});
   ASSERT_EQ(fit.reach.size(), 5u);
   for (const auto& r : fit.reach) {
     SCOPED_TRACE(r.id);
-    if (r.train) {
-      EXPECT_NEAR(r.max_base_strain, 0.204, 0.02);
-    } else if (r.id == "trial2") {
-      EXPECT_TRUE(r.extrapolated);
-      EXPECT_NEAR(r.max_base_strain, 0.403, 0.02);
-    } else {
-      EXPECT_FALSE(r.extrapolated);
-    }
+    EXPECT_FALSE(r.extrapolated);
+    if (r.train)
+      EXPECT_NEAR(r.max_base_strain, 0.40, 0.03);
+    else
+      EXPECT_LT(r.max_base_strain, 0.30);
   }
-  ASSERT_EQ(fit.warnings.size(), 1u);
-  EXPECT_NE(fit.warnings[0].find("trial2 drives the base foam"), std::string::npos) << fit.warnings[0];
+  EXPECT_TRUE(fit.warnings.empty());
 }
-TEST(Model6Fit, GeneratorFoamWithinTargets) { check_generator(2407, Tolerance{}); }
+TEST(Model6Fit, GeneratorFoamWithinTargets) { check_generator(2407, kGeneratorFoam); }
 
-// Seed 2425 (a stiff base foam the 4.79 m/s training impact barely takes
-// past its linear part): from the generic start the search ends in a basin
-// whose base hardens where the true base yields (13.3 and 3.2 noise SDs;
-// the 5.85 m/s peaks 25 % high, travel 2.4 mm short, offsets 1.3 ms off);
-// the second start, a stiffer base, trains to 1.9 and 0.9 noise SDs and
-// predicts peaks within 4.8 %, travel within 0.4 mm, offsets within 0.3 ms
-// (the fast trials extrapolate the base law: the rest of the error).
-// Asserted at the training targets and 6 %, 1 mm, 0.5 ms held out.
-TEST(Model6Fit, GeneratorFoamSecondStart) { check_generator(2425, Tolerance{0.06, 1e-3, 5e-4, 4.0, 4.0}); }
+// Seed 2425 (a stiff base foam): from the generic start the search ends
+// at 7.5 noise SDs of training force; the second start, a stiffer base,
+// at 4.7 (held-out peaks within 0.3 % either way). Asserted: the held-out
+// targets and the training force under 6 noise SDs, which only the second
+// start reaches.
+TEST(Model6Fit, GeneratorFoamSecondStart) { check_generator(2425, Tolerance{0.02, 1.5e-3, 3e-4, 6.0, 4.0}); }
 
 // Every trial's 95 % prediction intervals on a generator foam the column
-// fits well (seed 2407: training residual 3.6 and 0.9 noise SDs, held-out
-// peaks within 0.2 % of the truth). Asserted: each interval exists, is
+// fits well (seed 2407: training residual 5.9 and 1.3 noise SDs, held-out
+// peaks within 0.5 % of the truth). Asserted: each interval exists, is
 // finite and of a size a lab can use (peak force SE between 0.01 % and 3 %
 // of the peak, time to peak SE between 1 us and 1 ms, travel SE between
 // 0.01 and 3 mm); the model's discrepancy only widens them; every trial's
 // true peak force and largest travel lie inside their interval. The time
-// to peak's interval is narrower than its error on this seed (0.07-0.11 ms
-// against SEs of 0.02-0.04 ms on the held-out trials; its coverage over
+// to peak's interval can be narrower than its error (its coverage over
 // many foams is in docs/validation.md): asserted only within 0.2 ms of the
 // truth.
 TEST(Model6Fit, PredictionIntervalsHoldTheTruth) {
