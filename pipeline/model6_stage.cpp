@@ -112,10 +112,26 @@ std::optional<fitting::Model6FitResult> EarlyModel6::take(const std::vector<fitt
   return std::move(fit_);
 }
 
-void start_model6_early(const SessionState& state, EarlyModel6& early, double force_sd, double impactor_sd, const diagnosis::PlateCorrection& correction) {
+std::vector<std::string> model6_train_ids(const std::vector<fitting::TrialData>& accepted,
+                                          const std::vector<std::string>& rival_train_ids) {
+  const auto deepest = std::max_element(accepted.begin(), accepted.end(), [](const auto& a, const auto& b) {
+    return a.impact_velocity_m_s < b.impact_velocity_m_s;
+  });
+  if (deepest == accepted.end()) return {};
+  int both_hold_out = 0;
+  for (const auto& t : accepted)
+    if (t.id != deepest->id && std::find(rival_train_ids.begin(), rival_train_ids.end(), t.id) == rival_train_ids.end())
+      ++both_hold_out;
+  return both_hold_out >= kModel6MinPairedTrials ? std::vector<std::string>{deepest->id} : rival_train_ids;
+}
+
+void start_model6_early(const SessionState& state, EarlyModel6& early, const fitting::FitResult& current,
+                        double force_sd, double impactor_sd, const diagnosis::PlateCorrection& correction) {
   if (early.started() || !(std::max(force_sd, impactor_sd) > kEarlyModel6NoiseSd)) return;
   fitting::Model6FitOptions options = model6_options(state.session.manifest);
-  early.start(accepted_data(corrected_fit_data(state, correction)), std::move(options));
+  std::vector<fitting::TrialData> data = accepted_data(corrected_fit_data(state, correction));
+  options.train_ids = model6_train_ids(data, current.train_ids);
+  early.start(std::move(data), std::move(options));
 }
 
 void consider_model6(SessionState& state, EarlyModel6* early) {
@@ -126,6 +142,7 @@ void consider_model6(SessionState& state, EarlyModel6* early) {
   stage.rival = state.final_label();
   stage.options = model6_options(state.session.manifest);
   const std::vector<fitting::TrialData> data = accepted_data(state.fit_data);
+  stage.options.train_ids = model6_train_ids(data, rival.train_ids);
   try {
     std::optional<fitting::Model6FitResult> fit;
     if (early) fit = early->take(data, stage.options);
@@ -148,7 +165,7 @@ void consider_model6(SessionState& state, EarlyModel6* early) {
       stage.heldout_force_sd <= mo.unexplained_noise_sd && stage.heldout_impactor_sd <= mo.unexplained_noise_sd;
   stage.reason = fmt::format(
       "the final lumped model ({}) leaves the held-out residual above the noise, so Model 6 (the foam column) was "
-      "fitted on the deepest impact, {} ({:.2f} s): {}{}",
+      "fitted on {} ({:.2f} s): {}{}",
       stage.rival, fmt::join(stage.fit->train_ids, ", "), stage.fit->seconds, stage.choice->evidence,
       stage.chosen ? (stage.reaches_noise ? "; Model 6 is the final model and reaches the noise"
                                           : fmt::format("; Model 6 is the final model but does not reach the noise "

@@ -5,10 +5,10 @@
 // chains. When the final model of the loop leaves the held-out residual
 // above the noise (the mat stage's remaining structure), the mat may be a
 // continuum that no lumped chain describes: Model 6 is fitted on its own
-// training trial (the deepest impact: fitting/model6_fit.h) and the two
-// are judged by held-out prediction on both channels, paired over the
-// trials both hold out (diagnosis::choose_by_held_out; no information
-// criterion vetoes a model that predicts clearly better).
+// training trial (the deepest impact, model6_train_ids) and the two are
+// judged by held-out prediction on both channels, paired over the trials
+// both hold out (diagnosis::choose_by_held_out; no information criterion
+// vetoes a model that predicts clearly better).
 // When Model 6 wins it is the session's final model: it places each
 // trial's contact on the force clock, so the clock offsets and the sync
 // verdict are judged again on its contacts.
@@ -60,14 +60,25 @@ bool final_model_short_of_noise(const SessionState& state);
 // kEarlyModel6NoiseSd noise SDs on a channel, the lumped chains rarely
 // reach the noise (a named effect brings a lumped-chain mat to the noise;
 // on a foam column the model stays far above it: docs/models.md has the
-// measured errors), so Model 6 is started then on the data it would be
-// fitted on after the loop. consider_model6 takes that fit only when its
+// measured errors), so Model 6 is started then on the data and training
+// trial it would be fitted on after the loop. consider_model6 takes that fit only when its
 // inputs are exactly those it would fit on (the same trials, values and
 // training trial: the fit is deterministic, so the result is the one it
 // would get); otherwise, and when Model 6 is not needed, the early fit is
 // cancelled. Only the time changes: on two cores Model 6's single-threaded
 // stretches overlap the loop's refits.
 inline constexpr double kEarlyModel6NoiseSd = 10.0;
+
+// Model 6's training trial: the deepest impact (the accepted trial with the
+// highest impact velocity: a foam's law is nonlinear in strain and a trial
+// shows it only up to the strain it reaches, so every other trial is then
+// predicted inside what training showed), when that leaves at least
+// kModel6MinPairedTrials trials held out by both Model 6 and the rival
+// trained on rival_train_ids (the paired choice needs them); else the
+// rival's own training trials (a session left with three accepted trials).
+inline constexpr int kModel6MinPairedTrials = 2;
+std::vector<std::string> model6_train_ids(const std::vector<fitting::TrialData>& accepted,
+                                          const std::vector<std::string>& rival_train_ids);
 
 class EarlyModel6 {
  public:
@@ -97,10 +108,11 @@ class EarlyModel6 {
 
 // The mat stage's callback (diagnosis::DiagnosisOptions::after_mat_round):
 // starts `early` on the fit data the pipeline will hold after the loop
-// (with the plate correction the mat stage's data carry), when a channel
-// of the model the loop goes on from stays above kEarlyModel6NoiseSd.
-void start_model6_early(const SessionState& state, EarlyModel6& early, double force_sd, double impactor_sd,
-                        const diagnosis::PlateCorrection& correction);
+// (with the plate correction the mat stage's data carry) and the training
+// trial model6_train_ids gives beside `current`, the model the loop goes on
+// from, when one of its channels stays above kEarlyModel6NoiseSd.
+void start_model6_early(const SessionState& state, EarlyModel6& early, const fitting::FitResult& current,
+                        double force_sd, double impactor_sd, const diagnosis::PlateCorrection& correction);
 
 // Fits Model 6 when the final lumped model does not reach the noise and
 // judges it against that model (state.model6); a failed fit is a note.

@@ -250,9 +250,9 @@ void close_loop(SessionState& state) {
   if (state.accepted() > 0) {
     try {
       diagnosis::DiagnosisOptions options;
-      options.after_mat_round = [&](const fitting::FitResult&, double force_sd, double impactor_sd,
+      options.after_mat_round = [&](const fitting::FitResult& current, double force_sd, double impactor_sd,
                                     const diagnosis::PlateCorrection& correction) {
-        start_model6_early(state, early, force_sd, impactor_sd, correction);
+        start_model6_early(state, early, current, force_sd, impactor_sd, correction);
       };
       state.loop = diagnosis::diagnose(state, options);
       for (const auto& stage : state.loop->not_assessed)

@@ -148,6 +148,28 @@ void check_not_triggered(const fs::path& dir) {
 // is taken only on exactly the inputs the fit after the loop would use, and
 // is then that fit to the last bit; on other inputs it is cancelled and not
 // taken; a cancelled fit throws instead of returning.
+// Model 6's training trial: the fastest accepted trial while two or more
+// trials stay held out by both models; with three accepted trials and the
+// rival trained on the middle one, the rival's (the paired choice would
+// have one trial).
+TEST(Model6Pipeline, TrainsOnTheDeepestImpactWhenTwoTrialsArePaired) {
+  auto trials = [](std::vector<double> v) {
+    std::vector<fitting::TrialData> out;
+    for (size_t i = 0; i < v.size(); ++i) {
+      out.emplace_back();
+      out.back().id = "trial" + std::to_string(i + 1);
+      out.back().impact_velocity_m_s = v[i];
+    }
+    return out;
+  };
+  using Ids = std::vector<std::string>;
+  EXPECT_EQ(pipeline::model6_train_ids(trials({4.3, 6.5, 5.25, 4.8, 5.75}), {"trial3"}), Ids{"trial2"});
+  EXPECT_EQ(pipeline::model6_train_ids(trials({4.3, 4.8, 5.25, 5.75}), {"trial2"}), Ids{"trial4"});
+  EXPECT_EQ(pipeline::model6_train_ids(trials({4.3, 4.8, 5.25}), {"trial2"}), Ids{"trial2"});
+  EXPECT_EQ(pipeline::model6_train_ids(trials({4.3, 4.8, 5.25}), {"trial3"}), Ids{"trial3"});
+  EXPECT_TRUE(pipeline::model6_train_ids({}, {"trial3"}).empty());
+}
+
 TEST(Model6Pipeline, EarlyFitIsTheFitAfterTheLoopOrNone) {
   const fs::path dir = shared_path("validation-continuum") / "c1-foam";
   DROPFIT_NEED_SHARED(dir);
