@@ -179,7 +179,9 @@ Model6Params model6_params_at(const Eigen::VectorXd& coordinates, const Model6Fi
 // covariance (central differences through simulate_model6), the trial's
 // impact velocity SE (a held-out trial's: a training trial's own velocity
 // error is absorbed by the fit) and, with options.model_discrepancy, the
-// model's discrepancy (res.discrepancy). Needs res.reach and the training
+// model's discrepancy (res.discrepancy; with cross_validate_discrepancy a
+// held-out trial's scaled by the other held-out trials' measured errors,
+// fitting/model6_calibration.h), and res.timing_discrepancy_s. Needs res.reach and the training
 // trials' reports; fit_model6 calls it. A trial whose simulation fails
 // keeps no intervals and gets a warning. Reads no file.
 void add_model6_prediction_intervals(const std::vector<TrialData>& trials, const Model6FitOptions& options,
