@@ -22,7 +22,10 @@
 // largest held-out errors, and the held-out trials the fit flags as
 // extrapolations of a foam's law (fitting/model6_fit.h). The prediction
 // intervals: per trial the errors of the peak force, time to peak and
-// largest travel in SEs as stated and without the model's discrepancy, a
+// largest travel in SEs as stated (calibrated), uncalibrated (the training
+// misfit times its growth) and without the model's discrepancy; per trial an
+// `OFF id offset truth se_before se_after` line (ms: the clock offset's SE
+// as fitted and as calibrated, fitting/model6_calibration.h); a
 // machine-readable `ROW id train growth` line (per quantity: value, truth,
 // the parameters' and velocity's SE, the discrepancy's SD) and the time
 // the intervals take; at the end their coverage over all sessions.
