@@ -10,7 +10,8 @@
 //
 // Environment: M6_ELEMENTS=n_top,n_base,max_step_s fits another column
 // than the pipeline's; M6_HELD_EXPONENT=1 keeps the densification exponent
-// held (never freed); M6_DUMP=1 prints each training trial's measured and
+// held (never freed); M6_NO_SCREEN=1 starts from the generic start alone
+// (no screening of the base foam's stiffness); M6_DUMP=1 prints each training trial's measured and
 // fitted force and travel.
 //
 // Prints per trial the peak force's error (% of the truth), the maximum
@@ -181,6 +182,7 @@ Worst scan(const std::string& label, const Session& session, const std::vector<T
   if (const char* e = std::getenv("M6_ELEMENTS")) std::sscanf(e, "%d,%d,%lf", &o.geometry.n_top, &o.geometry.n_base,
                                                                &o.geometry.max_step_s);
   if (const char* e = std::getenv("M6_HELD_EXPONENT"); e && *e == '1') o.free_exponent_cost_ratio = 0.0;
+  if (const char* e = std::getenv("M6_NO_SCREEN"); e && *e == '1') o.start_base_scales = {1.0};
   std::vector<fitting::TrialData> data;
   for (const auto& d : state.fit_data)
     if (d.accepted) data.push_back(d);

@@ -23,7 +23,10 @@
 // search runs with n held at densification_exponent and, when that fit is
 // short of the noise, again with it free, keeping n free only when that
 // halves the cost: see free_exponent_cost_ratio). Start: a generic landing-mat foam pair with
-// every stress scaled by the training trials' peak stress.
+// every stress scaled by the training trials' peak stress; when the search
+// from there ends short of the noise, it runs again from the generic pair
+// with a stiffer or softer base foam (screened, see start_base_scales) and
+// the lower cost is the fit.
 //
 // This fitter stands beside fitting/fit.h's (which fits Models 1-5 and the
 // loop's effects): it returns the same TrialReport per trial, so held-out
@@ -61,6 +64,16 @@ struct Model6FitOptions {
   double contact_shift_max_s = 1e-3;
   int oversample = 2;                // simulated samples per plate sample
   int max_iterations = 60;
+  // A second start: when the search from the generic start ends short of
+  // the noise (RMS residual over both channels above restart_min_rms noise
+  // SDs), the generic start with the base foam's four stresses scaled by
+  // each of start_base_scales (1: the generic start itself, skipped) is
+  // screened for screen_iterations (clock shifts held), the whole search
+  // runs again from the lowest, and the lower final cost is the fit.
+  // Empty or {1}: no second start.
+  std::vector<double> start_base_scales{2.0, 0.5};
+  int screen_iterations = 10;
+  double restart_min_rms = 4.0;
   // The first stage (clock shifts held, re-profiled between rounds): rounds
   // of stage_iterations each.
   int stage_rounds = 4;

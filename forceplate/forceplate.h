@@ -161,4 +161,32 @@ double butterworth_delay_s(double corner_hz, int order);
 // crossing is far from the declared trigger sample.
 ForceTrial process(const Resultants& raw, const ProcessOptions& options);
 
+// A step in one channel once the load has left (channel_step.cpp): each
+// channel's line through the quiet pre-trigger part against its line
+// through a stretch where the plate carries none of the impactor's load
+// (the video shows it in the air), on the force clock. `size_n`: the jump
+// between the two; `drift_allowance_n`: what a drift at the larger of the
+// two slopes (plus two SEs) moves the channel over the time between them;
+// the step is found when the jump exceeds that allowance by more than
+// kStepNoiseFactor noise SDs and kStepFloorN. `time_s`: the instant that
+// fits the channel best against the load it shares (NaN when it shares
+// none, e.g. Fz of a resultant-only record). The fields describe the channel
+// with the largest excess even when no step is found (its margin).
+constexpr double kStepNoiseFactor = 8.0;
+constexpr double kStepFloorN = 5.0;
+struct ChannelStep {
+  bool found = false;
+  std::string channel;
+  int column = -1;
+  double size_n = std::numeric_limits<double>::quiet_NaN();
+  double time_s = std::numeric_limits<double>::quiet_NaN();
+  double drift_allowance_n = std::numeric_limits<double>::quiet_NaN();
+  double noise_n = std::numeric_limits<double>::quiet_NaN();
+  double excess_noise_ratio = std::numeric_limits<double>::quiet_NaN();  // (|jump| - allowance) / noise
+  double unloaded_from_s = std::numeric_limits<double>::quiet_NaN();
+  double unloaded_to_s = std::numeric_limits<double>::quiet_NaN();
+  std::string reason() const;
+};
+ChannelStep find_channel_step(const ForceTrial& trial, double unloaded_from_s, double unloaded_to_s);
+
 }  // namespace dropfit::forceplate

@@ -9,6 +9,7 @@
 // markers, and this library depends on calibration); this stage applies it
 // to whole trials.
 #include <Eigen/Core>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -48,6 +49,19 @@ struct CameraLag {
   // lags 0 and +-1 within that factor of each other; a whole frame of a
   // moving marker is several times the digitising noise.
   bool desynchronised() const;
+  // One camera losing or repeating a frame part-way through the trial
+  // changes the lag at that row: the rows before keep one lag, the rows
+  // from change_row on another. The split (every row tried) that leaves the
+  // smallest mean squared residual with each part at its own best lag;
+  // split_rms_px its RMS. -1 when no split leaves kMinLagFrames frames on
+  // each side.
+  int change_row = -1;
+  int lag_before = 0, lag_after = 0;
+  double split_rms_px = std::numeric_limits<double>::quiet_NaN();
+  // The lag changes part-way: the two parts' best lags differ and the one
+  // lag of the whole trial leaves more than kLagResidualFactor times the
+  // split's RMS.
+  bool changes_part_way() const;
 };
 constexpr int kMinLagFrames = 20;
 constexpr double kLagResidualFactor = 2.0;

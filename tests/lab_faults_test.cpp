@@ -14,9 +14,11 @@
 #include <iostream>
 #include <string>
 
+#include "capture/io.h"
 #include "diagnosis/diagnosis.h"
 #include "pipeline/pipeline.h"
 #include "samples/generator/synth.h"
+#include "support/shared_data.h"
 
 namespace dropfit {
 namespace {
@@ -358,6 +360,158 @@ TEST(LabFaults, ForceFileOfAnotherTrialKeepsItsOwner) {
       EXPECT_TRUE(contains(r.reject_reason, "its force record is trial4's")) << r.reject_reason;
     } else {
       EXPECT_TRUE(r.accepted) << r.id << ": " << r.reject_reason;
+    }
+  }
+}
+
+// ---- A step in one force channel --------------------------------------------
+
+// Channel `column` reads `step_n` more from `after_trigger_s` after the
+// trigger to the record's end (a charge amplifier's reset or jump, a cable
+// knocked).
+void step_channel(Session& s, int column, double step_n, double after_trigger_s) {
+  for (auto& trial : s.trials) {
+    ForceRecord& f = trial.force;
+    for (Eigen::Index k = 0; k < f.t_s.size(); ++k)
+      if (f.t_s(k) >= after_trigger_s - 1e-9) f.data(k, column) += step_n;
+  }
+}
+
+// +50 N on Fz1 from 30 ms after the trigger, mid-contact: before, every
+// trial was accepted and a force scale of 1.016 named and applied. The
+// channel does not return to its zero while the impactor is in the air, a
+// drift at the slopes it shows cannot move it that far: every trial
+// rejected, the step the first reason, naming the channel, the step's size
+// and its instant. The same for a step while the impactor is in the air
+// (+200 ms) and for a shear channel.
+TEST(LabFaults, StepInOneChannelRejectsNamingIt) {
+  struct Case {
+    std::uint64_t seed;
+    int column;
+    double after_trigger_s;
+    std::string channel;
+  };
+  for (const Case& c : {Case{42, 4, 0.030, "Fz1"}, Case{43, 4, 0.030, "Fz1"}, Case{42, 4, 0.200, "Fz1"},
+                        Case{42, 0, 0.030, "Fx12"}}) {
+    Session s = independent_session(c.seed);
+    step_channel(s, c.column, 50.0, c.after_trigger_s);
+    const pipeline::SessionState state = trials_of(s);
+    if (std::getenv("DROPFIT_SHOW")) std::cerr << verdicts(state);
+    for (const auto& t : state.trials) {
+      EXPECT_FALSE(t.result.accepted) << t.result.id;
+      const std::string& r = t.result.reject_reason;
+      ASSERT_EQ(r.rfind("force record: channel " + c.channel + " steps by +", 0), 0u) << r;
+      // The size against the channel's zero before the trigger, within 2 N
+      // (its noise is 1.5 N SD; a mid-contact step's size is read in the air).
+      EXPECT_NEAR(std::stod(r.substr(r.find("steps by ") + 9)), 50.0, 2.0) << r;
+      const auto at = r.find(" N at ");
+      ASSERT_NE(at, std::string::npos) << r;
+      // The instant, on the force clock: the step comes between two samples
+      // 1 ms apart, reported halfway, within 1 ms.
+      EXPECT_NEAR(std::stod(r.substr(at + 6)), 1e3 * c.after_trigger_s, 1.0) << r;
+    }
+  }
+}
+
+// A baseline drift is slow: 40 N on Fz over the record (from the first
+// sample, or from the trigger), the drift the loop names, is no step. The
+// largest excess over what a drift allows stays under 2 noise SDs (8 name
+// a step); on the clean session under 1.
+TEST(LabFaults, BaselineDriftIsNoStep) {
+  for (const bool whole : {true, false}) {
+    synth::SynthOptions o = synth::independent_world_options(21);
+    o.effects.baseline_drift_n_s = whole ? -8.0 : 8.0;
+    o.effects.baseline_drift_whole_record = whole;
+    const pipeline::SessionState state = trials_of(synth::make_session(o).session);
+    for (const auto& t : state.trials) {
+      EXPECT_TRUE(t.result.accepted) << t.result.reject_reason;
+      EXPECT_EQ(t.result.reject_reason.find("steps by"), std::string::npos) << t.result.reject_reason;
+    }
+  }
+  const pipeline::SessionState clean = trials_of(independent_session(42));
+  for (const auto& t : clean.trials) {
+    ASSERT_TRUE(t.force.has_value());
+    const double from = t.result.end_time_s + 0.1;
+    const forceplate::ChannelStep step = forceplate::find_channel_step(*t.force, from, from + 0.4);
+    EXPECT_FALSE(step.found) << t.result.id;
+    EXPECT_LT(step.excess_noise_ratio, 1.0) << t.result.id << " " << step.channel;
+  }
+}
+
+// ---- One camera alone losing a frame -------------------------------------------
+
+// Camera `camera` loses the frame at row `frame`: its later rows a frame
+// early, a gap at its end; the other camera's rows as they were.
+void lose_frame_in_camera(MarkerTracks2D& tr, int camera, int frame) {
+  for (int p = 0; p < tr.n_points(); ++p) {
+    const int c = tr.column(p, camera);
+    for (int k = frame; k + 1 < tr.n_frames(); ++k) tr.uv_px.block(k, c, 1, 2) = tr.uv_px.block(k + 1, c, 1, 2);
+    tr.uv_px.block(tr.n_frames() - 1, c, 1, 2).setConstant(std::nan(""));
+  }
+}
+
+// Camera 2 alone loses the frame 15 frames before contact: before, every
+// trial was rejected but two of five named the frame rate first (the lag
+// judged over the whole trial is 0, the rows before the loss keep it). The
+// lag changes at the lost row: that is the first reason, naming the camera
+// and the row.
+TEST(LabFaults, OneCameraLosingAFrameIsTheFirstReason) {
+  Session s = independent_session(42);
+  const int contact = s.manifest.video.trigger_frame;
+  for (auto& trial : s.trials) lose_frame_in_camera(trial.tracks, 1, contact - 15);
+  const pipeline::SessionState state = trials_of(s);
+  if (std::getenv("DROPFIT_SHOW")) std::cerr << verdicts(state);
+  for (const auto& t : state.trials) {
+    EXPECT_FALSE(t.result.accepted) << t.result.id;
+    const std::string& r = t.result.reject_reason;
+    EXPECT_EQ(r.rfind("camera cam2 lost 1 frame at its row ", 0), 0u) << r;
+    ASSERT_EQ(t.trajectories.camera_lags.size(), 1u);
+    const auto& lag = t.trajectories.camera_lags[0];
+    // The lost row, within a frame (the rows about it differ by the
+    // marker's motion over one frame only where it moves).
+    EXPECT_NEAR(lag.change_row, contact - 15, 1) << r;
+    EXPECT_EQ(lag.lag_before, 0) << r;
+    EXPECT_EQ(lag.lag_after, -1) << r;
+  }
+  // The clean session: no change of lag.
+  for (const auto& t : trials_of(independent_session(42)).trials) {
+    ASSERT_EQ(t.trajectories.camera_lags.size(), 1u);
+    EXPECT_FALSE(t.trajectories.camera_lags[0].changes_part_way()) << t.result.id;
+  }
+}
+
+// ---- The shared sessions: no step, no lag change ------------------------------
+
+// On ../shared v1-v6 and c1-c6 (independent worlds, clean instruments or
+// faults of other kinds) no channel steps and no camera's lag changes: the
+// largest excess over a drift, 100-400 ms after the contact's end, is under
+// 1.5 noise SDs (8 name a step), and no trial is rejected for a lag change.
+TEST(LabFaults, SharedSessionsHaveNoStepNorLagChange) {
+  const std::vector<std::string> sessions{"validation/v1-realistic", "validation/v2-linear-control",
+                                          "validation/v3-hysteresis", "validation/v4-rate",
+                                          "validation/v5-outlier-lens-offset", "validation/v6-formats-drift-scale",
+                                          "validation-continuum/c1-foam", "validation-continuum/c2-foam",
+                                          "validation-continuum/c3-saturation", "validation-continuum/c4-softening",
+                                          "validation-continuum/c5-lowpass-offset",
+                                          "validation-continuum/c6-second-impact-drift"};
+  for (const std::string& name : sessions) {
+    const auto dir = testsupport::shared_path(name) / "session";
+    DROPFIT_NEED_SHARED(dir);
+    const pipeline::SessionState state = trials_of(capture::read_session(dir.string()));
+    for (const auto& t : state.trials) {
+      EXPECT_EQ(t.result.reject_reason.find("steps by"), std::string::npos) << name << " " << t.result.reject_reason;
+      if (t.force) {
+        const double from = t.result.end_time_s + 0.1;
+        const forceplate::ChannelStep step = forceplate::find_channel_step(*t.force, from, from + 0.3);
+        EXPECT_LT(step.excess_noise_ratio, 1.5) << name << " " << t.result.id << " " << step.channel;
+      }
+      for (const auto& lag : t.trajectories.camera_lags) {
+        if (std::getenv("DROPFIT_SHOW"))
+          std::cerr << name << " " << t.result.id << ": " << (lag.changes_part_way() ? "split" : "one lag") << ", lags " << lag.lag_before << " / " << lag.lag_after
+                    << " at row " << lag.change_row << ", split " << lag.split_rms_px << " px, one lag "
+                    << lag.rms_px(lag.best_lag) << " px\n";
+        EXPECT_EQ(t.result.reject_reason.find("frame at its row"), std::string::npos) << t.result.reject_reason;
+      }
     }
   }
 }

@@ -167,6 +167,16 @@ TEST(Model6Fit, GeneratorFoam) {
 }
 TEST(Model6Fit, GeneratorFoamWithinTargets) { check_generator(2407, Tolerance{}); }
 
+// Seed 2425 (a stiff base foam the 4.79 m/s training impact barely takes
+// past its linear part): from the generic start the search ends in a basin
+// whose base hardens where the true base yields (13.3 and 3.2 noise SDs;
+// the 5.85 m/s peaks 25 % high, travel 2.4 mm short, offsets 1.3 ms off);
+// the second start, a stiffer base, trains to 1.9 and 0.9 noise SDs and
+// predicts peaks within 4.8 %, travel within 0.4 mm, offsets within 0.3 ms
+// (the fast trials extrapolate the base law: the rest of the error).
+// Asserted at the training targets and 6 %, 1 mm, 0.5 ms held out.
+TEST(Model6Fit, GeneratorFoamSecondStart) { check_generator(2425, Tolerance{0.06, 1e-3, 5e-4, 4.0, 4.0}); }
+
 // Every trial's 95 % prediction intervals on a generator foam the column
 // fits well (seed 2407: training residual 3.6 and 0.9 noise SDs, held-out
 // peaks within 0.2 % of the truth). Asserted: each interval exists, is

@@ -181,4 +181,30 @@ std::string fall_acceleration_reason(const FallAcceleration& fall, const TrialOp
       o.frame_rate_hz, free_rate_hz, fall.accel_m_s2 / g);
 }
 
+std::pair<double, double> airborne_stretch_s(const Eigen::VectorXd& h, double top_m, double contact_frame,
+                                             double frame_rate_hz, int trigger_frame, double offset_s,
+                                             double gravity_m_s2) {
+  constexpr double kSettle_s = 0.050, kAbove_m = 0.005, kMin_s = 0.050;
+  const int nf = static_cast<int>(h.size());
+  auto time = [&](int frame) { return (frame - trigger_frame) / frame_rate_hz; };
+  int i = std::max(0, static_cast<int>(std::ceil(contact_frame))) + 1;
+  while (i < nf && !(std::isfinite(h[i]) && h[i] >= top_m + kAbove_m)) ++i;
+  if (i >= nf) return {kNaN, kNaN};
+  const double leave_s = time(i);
+  // z + g u^2 / 2 = z0 + v_up u over the frames in the air (u from leaving).
+  std::vector<double> u, y;
+  for (; i < nf && !(std::isfinite(h[i]) && h[i] < top_m + kAbove_m); ++i) {
+    if (!std::isfinite(h[i])) continue;
+    u.push_back(time(i) - leave_s);
+    y.push_back(h[i] + 0.5 * gravity_m_s2 * u.back() * u.back());
+  }
+  if (u.size() < 10) return {kNaN, kNaN};
+  const std::optional<PolyFit> fit = poly_fit(u, y, std::vector<char>(u.size(), 1), 1);
+  if (!fit) return {kNaN, kNaN};
+  const double v_up = fit->coef[1];
+  const double from = leave_s + kSettle_s - offset_s, to = leave_s + 0.9 * 2.0 * v_up / gravity_m_s2 - offset_s;
+  if (!(to - from >= kMin_s)) return {kNaN, kNaN};
+  return {from, to};
+}
+
 }  // namespace dropfit::trial

@@ -696,6 +696,13 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
       if (std::isfinite(d)) res.video_offset_trajectory_s = d;
     }
     impulse_checks(*force, o, res, reasons);
+    if (std::isfinite(start_v)) {
+      const auto [from, to] = airborne_stretch_s(h, top, clock.frame(start_v), o.frame_rate_hz, o.trigger_frame, offset, o.gravity_m_s2);
+      if (std::isfinite(from)) {
+        const forceplate::ChannelStep step = forceplate::find_channel_step(*force, from, to);
+        if (step.found) reasons.insert(reasons.begin(), step.reason());
+      }
+    }
   }
 
   res.accepted = reasons.empty();
@@ -863,6 +870,24 @@ CalibrationQuality calibration_quality(const calibration::CalibrationResult& cal
   return q;
 }
 
+namespace {
+
+// One camera's rows change their lag part-way (CameraLag::changes_part_way).
+std::string camera_lag_change_reason(const reconstruction::CameraLag& lag, const TrialOptions& o) {
+  const int d = lag.lag_after - lag.lag_before;
+  const auto row = [](int l) { return l == 0 ? std::string("row k") : fmt::format("row k {} {}", l < 0 ? '-' : '+', std::abs(l)); };
+  return fmt::format(
+      "camera {} {} {} frame{} at its row {} ({:+.1f} ms on the video clock) that camera {} did not: its {} matches "
+      "camera {}'s row k before that row and its {} from it on (the base markers reproject {:.2g} px RMS so, against "
+      "{:.2g} px with any one lag for the whole trial); every position from that row on is triangulated from two "
+      "instants",
+      lag.name, d < 0 ? "lost" : "repeated", std::abs(d), std::abs(d) == 1 ? "" : "s", lag.change_row,
+      1e3 * (lag.change_row - o.trigger_frame) / o.frame_rate_hz, lag.reference, row(lag.lag_before), lag.reference,
+      row(lag.lag_after), lag.split_rms_px, lag.rms_px(lag.best_lag));
+}
+
+}  // namespace
+
 void apply_calibration_gates(TrialResult& result, const reconstruction::Trajectories& markers,
                              const TrialOptions& options, const CalibrationQuality& quality) {
   std::vector<double> r, change;
@@ -890,6 +915,16 @@ void apply_calibration_gates(TrialResult& result, const reconstruction::Trajecto
     }
   }
   for (const auto& lag : markers.camera_lags) {
+    // A lag that changes part-way leaves the rays meeting as well as the
+    // calibration's own do; one that only trades a steady miss (a camera
+    // moved) against the marker's motion, which reverses at the bottom,
+    // leaves several times that.
+    const bool meets = !std::isfinite(quality.fit_rms_px) ||
+                       lag.split_rms_px <= reconstruction::kLagResidualFactor * quality.fit_rms_px;
+    if (lag.changes_part_way() && meets) {
+      reasons.push_back(camera_lag_change_reason(lag, options));
+      continue;
+    }
     if (!lag.desynchronised()) continue;
     reasons.push_back(fmt::format(
         "the cameras' rows are not the same instants: the base markers reproject {:.2g} px RMS with the rows as "

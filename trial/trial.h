@@ -142,6 +142,15 @@
 //   of acceleration; the velocity (x f / f0) and every clock-derived number
 //   would be off with nothing else to show it, since the force impulse gate
 //   allows the mat's momentum.
+// - Force channels back at their zero: once the video shows the impactor
+//   in the air (airborne_stretch_s) the plate carries what it carried
+//   before the drop, so every channel must read its pre-trigger zero again
+//   within what a drift at its own slopes allows; a channel that jumped (a
+//   charge amplifier's reset, a knocked cable: forceplate::
+//   find_channel_step) rejects the trial as its first reason, naming the
+//   channel, the step and its instant. On the shared validation sessions
+//   and clean generator sessions the largest excess is under 1 noise SD
+//   against the 8 that name a step.
 // - Reprojection and calibration: apply_calibration_gates() (below), given
 //   the calibration's own quality, rejects a trial whose markers' median
 //   reprojection residual is far above what the calibration achieved, and
@@ -149,6 +158,7 @@
 #include <Eigen/Core>
 #include <limits>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "forceplate/forceplate.h"
@@ -238,6 +248,21 @@ FallAcceleration fit_fall_acceleration(const Eigen::VectorXd& t_s, const Eigen::
 // is consistent with options.gravity_m_s2, else the reason naming the
 // frame rate that would make it free.
 std::string fall_acceleration_reason(const FallAcceleration& fall, const TrialOptions& options);
+
+// The stretch of the force clock where the plate carries none of the
+// impactor's load, for find_channel_step (forceplate.h). h: the face
+// heights per video frame; the face first rises 5 mm above the contact
+// height top_m after contact_frame at time t_leave (video clock); its free
+// flight over the frames it is then seen in the air (least squares, gravity
+// known) gives its upward speed v_up, and it cannot land again before
+// 2 v_up / g has passed (a catcher only keeps it off the mat longer). The
+// stretch runs from 50 ms after leaving (the mat's top layer rings down) to
+// 90 % of that time, on the force clock (video time - offset_s). {NaN, NaN}
+// when the video does not see it leave, sees it in the air in fewer than
+// 10 frames, or the stretch is shorter than 50 ms.
+std::pair<double, double> airborne_stretch_s(const Eigen::VectorXd& h, double top_m, double contact_frame,
+                                             double frame_rate_hz, int trigger_frame, double offset_s,
+                                             double gravity_m_s2);
 
 // The second synchronisation estimate's core (video_offset_trajectory_s; the
 // loop runs it on a simulated impact for its bias, diagnosis::
@@ -426,6 +451,15 @@ void add_calibration_uncertainty(TrialResult& result, const CalibrationQuality& 
 // kSteadyResidualFactor x both the median frame-to-frame change of the
 // residual and the calibration's fit RMS (what the calibration itself
 // leaves between its rays).
+// The cameras' rows must be the same instants (markers.camera_lags): a
+// camera whose lag changes part-way (it alone lost or repeated a frame;
+// CameraLag::changes_part_way) and whose two lags leave the rays within
+// kLagResidualFactor times the calibration's fit RMS is named with the row
+// it changes at (a camera moved after calibration can also be split into
+// two lags, which trade its steady miss against the marker's motion before
+// and after the bottom, but its rays still miss by several times that); one
+// lag for the whole trial other than 0 (CameraLag::desynchronised) with
+// that lag. Either is the trial's first reason.
 constexpr double kMinResidualLimitPx = 5.0;
 constexpr double kResidualFactor = 10.0;
 constexpr double kSteadyResidualFactor = 5.0;
