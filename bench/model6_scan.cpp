@@ -23,7 +23,10 @@
 // largest held-out errors, and the held-out trials the fit flags as
 // extrapolations of a foam's law (fitting/model6_fit.h). The prediction
 // intervals: per trial the errors of the peak force, time to peak and
-// largest travel in SEs as stated and without the model's discrepancy, a
+// largest travel in SEs as stated (calibrated), uncalibrated (the training
+// misfit times its growth) and without the model's discrepancy; per trial an
+// `OFF id offset truth se_before se_after` line (ms: the clock offset's SE
+// as fitted and as calibrated, fitting/model6_calibration.h); a
 // machine-readable `ROW id train growth` line (per quantity: value, truth,
 // the parameters' and velocity's SE, the discrepancy's SD) and the time
 // the intervals take; at the end their coverage over all sessions.
@@ -42,6 +45,7 @@
 #include <vector>
 
 #include "capture/io.h"
+#include "fitting/model6_calibration.h"
 #include "fitting/model6_fit.h"
 #include "pipeline/model6_stage.h"
 #include "pipeline/pipeline.h"
@@ -60,10 +64,15 @@ struct TruthTrial {
 // Coverage tallies of the 95 % prediction intervals: [held out, training]
 // x [with the model's discrepancy, parameters and velocity alone] x
 // [peak force, time to peak, largest travel]; n per [held out, training].
+// [held out, training] x [calibrated, uncalibrated discrepancy,
+// parameters and velocity alone] x [peak force, time to peak, largest
+// travel]; the clock offsets' [before, after] their calibration.
 struct Coverage {
-  int hit[2][2][3] = {};
+  int hit[2][3][3] = {};
   int n[2] = {};
-  double z2[2][2][3] = {};
+  double z2[2][3][3] = {};
+  int offset_hit[2] = {}, offset_n = 0;
+  double offset_z2[2] = {};
 };
 Coverage g_coverage;
 
@@ -71,9 +80,11 @@ Coverage g_coverage;
 // the discrepancy) against the truth; prints each trial's errors in SEs.
 void score_intervals(const fitting::Model6FitResult& fit, const std::vector<fitting::TrialData>& data,
                      const fitting::Model6FitOptions& o, const std::vector<TruthTrial>& truth) {
-  fitting::Model6FitResult bare = fit;
-  fitting::Model6FitOptions bo = o;
+  fitting::Model6FitResult bare = fit, raw = fit;
+  fitting::Model6FitOptions bo = o, ro = o;
   bo.model_discrepancy = false;
+  ro.cross_validate_discrepancy = false;
+  fitting::add_model6_prediction_intervals(data, ro, raw);
   const auto t0 = std::chrono::steady_clock::now();
   const std::clock_t c0 = std::clock();
   fitting::add_model6_prediction_intervals(data, bo, bare);
@@ -87,15 +98,15 @@ void score_intervals(const fitting::Model6FitResult& fit, const std::vector<fitt
       const double g = k < fit.discrepancy.size() ? fit.discrepancy[k].growth : 1.0;
       std::printf("    %s%s growth %.2f:", t.id.c_str(), tr ? "*" : " ", g);
       ++g_coverage.n[tr];
-      for (int w = 0; w < 2; ++w) {
-        const fitting::Prediction& p = (w == 0 ? fit : bare).trials[k].prediction;
+      for (int w = 0; w < 3; ++w) {
+        const fitting::Prediction& p = (w == 0 ? fit : w == 1 ? raw : bare).trials[k].prediction;
         const fitting::PredictionInterval* iv[3] = {&p.peak_force_n, &p.time_to_peak_s, &p.max_deformation_m};
         const double tv[3] = {t.peak_n, t.time_to_peak_s, t.max_deformation_m};
         for (int q = 0; q < 3; ++q) {
           const double z = (iv[q]->value - tv[q]) / iv[q]->se;
           g_coverage.hit[tr][w][q] += std::abs(z) <= 1.959964 ? 1 : 0;
           g_coverage.z2[tr][w][q] += std::isfinite(z) ? z * z : 1e4;
-          std::printf(" %s %+6.2f", w == 0 ? (q == 0 ? "z(peak,tpk,travel)" : "") : (q == 0 ? " | bare" : ""), z);
+          std::printf(" %s %+6.2f", q > 0 ? "" : w == 0 ? "z(peak,tpk,travel)" : w == 1 ? " | uncalibrated" : " | bare", z);
         }
       }
       const fitting::Prediction& p = fit.trials[k].prediction;
@@ -118,15 +129,20 @@ void score_intervals(const fitting::Model6FitResult& fit, const std::vector<fitt
 
 void print_coverage() {
   const char* q[3] = {"peak force", "time to peak", "max deformation"};
+  const char* what[3] = {"calibrated", "uncalibrated discrepancy", "parameters + velocity"};
   for (int tr = 0; tr < 2; ++tr)
-    for (int w = 0; w < 2; ++w) {
-      std::printf("coverage %s, %s (n %d):", tr ? "training" : "held out", w ? "parameters + velocity" : "with discrepancy",
+    for (int w = 0; w < 3; ++w) {
+      std::printf("coverage %s, %s (n %d):", tr ? "training" : "held out", what[w],
                   g_coverage.n[tr]);
       for (int k = 0; k < 3; ++k)
         std::printf(" %s %.1f %% (RMS z %.2f)", q[k], 100.0 * g_coverage.hit[tr][w][k] / std::max(1, g_coverage.n[tr]),
                     std::sqrt(g_coverage.z2[tr][w][k] / std::max(1, g_coverage.n[tr])));
       std::printf("\n");
     }
+  for (int a = 0; a < 2; ++a)
+    std::printf("coverage clock offsets, %s (n %d): %.1f %% (RMS z %.2f)\n", a ? "calibrated" : "uncalibrated",
+                g_coverage.offset_n, 100.0 * g_coverage.offset_hit[a] / std::max(1, g_coverage.offset_n),
+                std::sqrt(g_coverage.offset_z2[a] / std::max(1, g_coverage.offset_n)));
 }
 
 struct Worst {
@@ -174,6 +190,8 @@ Worst scan(const std::string& label, const Session& session, const std::vector<T
   std::printf("%s: fit %.2f s, %ld iterations, training RMS force %.2f, travel %.2f noise SDs\n", label.c_str(),
               fit.seconds, fit.iterations, fit.force_rms_sigma, fit.impactor_rms_sigma);
   Worst w;
+  std::vector<double> offsets, offset_ses, offset_truth;
+  std::vector<std::string> offset_ids;
   for (const TruthTrial& t : truth) {
     const auto rep = std::find_if(fit.trials.begin(), fit.trials.end(), [&](const auto& r) { return r.id == t.id; });
     const auto st = std::find_if(state.trials.begin(), state.trials.end(),
@@ -191,6 +209,14 @@ Worst scan(const std::string& label, const Session& session, const std::vector<T
     const double dp = peak / t.peak_n - 1.0, dd = travel - t.max_deformation_m;
     const double doff = st->result.video_offset_s - rep->contact_shift_s - t.offset_s;
     const double z = doff / rep->contact_shift_se_s;
+    // The offset and its SE as the pipeline states them
+    // (pipeline::apply_model6_offsets), calibrated below.
+    offsets.push_back(st->result.video_offset_s - rep->contact_shift_s);
+    offset_ses.push_back(std::isfinite(st->result.video_contact_time_se_s)
+                             ? std::hypot(rep->contact_shift_se_s, st->result.video_contact_time_se_s)
+                             : rep->contact_shift_se_s);
+    offset_truth.push_back(t.offset_s);
+    offset_ids.push_back(t.id);
     std::printf("  %s%s v %.2f: peak %+6.2f %%, travel %+5.2f mm, offset %+6.3f ms (SE %.3f, z %+5.1f); measured "
                 "travel %+5.2f mm, velocity %+.3f m/s\n",
                 t.id.c_str(), rep->train ? "*" : " ", rep->impact_velocity_m_s, 100.0 * dp, 1e3 * dd, 1e3 * doff,
@@ -202,6 +228,20 @@ Worst scan(const std::string& label, const Session& session, const std::vector<T
     w.offset_s = std::max(w.offset_s, std::abs(doff));
     w.z = std::max(w.z, std::abs(z));
   }
+  const std::vector<double> calibrated =
+      fitting::calibrated_offset_ses(offsets, offset_ses, fit.timing_discrepancy_s);
+  for (size_t i = 0; i < offsets.size(); ++i) {
+    const double e = offsets[i] - offset_truth[i], se[2] = {offset_ses[i], calibrated[i]};
+    ++g_coverage.offset_n;
+    for (int a = 0; a < 2; ++a) {
+      g_coverage.offset_hit[a] += std::abs(e / se[a]) <= 1.959964 ? 1 : 0;
+      g_coverage.offset_z2[a] += std::pow(e / se[a], 2);
+    }
+    std::printf("OFF %s %.6f %.6f %.6f %.6f\n", offset_ids[i].c_str(), 1e3 * offsets[i], 1e3 * offset_truth[i],
+                1e3 * se[0], 1e3 * se[1]);
+  }
+  std::printf("  offsets: Birge ratio %.2f, timing discrepancy %.3f ms\n", fitting::birge_ratio(offsets, offset_ses),
+              1e3 * fit.timing_discrepancy_s);
   score_intervals(fit, data, o, truth);
   compare_laws(fit, o, data, column);
   for (const auto& r : fit.reach)

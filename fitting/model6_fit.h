@@ -113,6 +113,11 @@ struct Model6FitOptions {
   // the parameters' covariance and the trial's velocity; false: those two
   // alone.
   bool model_discrepancy = true;
+  // With model_discrepancy: each held-out trial's discrepancy scaled by
+  // what the other held-out trials' measured peak, time to peak and travel
+  // show against their predictions (fitting/model6_calibration.h); false:
+  // the training misfit times its growth alone.
+  bool cross_validate_discrepancy = true;
   // Set (by another thread) to stop the fit: fit_model6 then throws Error
   // after the solver iteration under way. Null: runs to the end.
   const std::atomic<bool>* cancel = nullptr;
@@ -135,11 +140,14 @@ struct Model6Reach {
 // in quadrature to the parameters' and the velocity's part of the
 // prediction interval): the training trials' misfit in the quantity times
 // `growth`, the trial's reach over the training trials' in the
-// densification coordinate (1 within their reach).
+// densification coordinate (1 within their reach), and for a held-out
+// trial with cross_validate_discrepancy the cross-validated widening
+// (`*_scale`: the interval's SE over the uncalibrated one, at least 1).
 struct Model6Discrepancy {
   std::string id;
   double growth = 1.0;
   double peak_force_n = 0.0, time_to_peak_s = 0.0, max_deformation_m = 0.0;
+  double peak_force_scale = 1.0, time_to_peak_scale = 1.0, max_deformation_scale = 1.0;
 };
 
 struct Model6FitResult {
@@ -163,6 +171,11 @@ struct Model6FitResult {
   // One per extrapolated trial: which foam it drives how far beyond the
   // training reach (its prediction's error can exceed the training fit's).
   std::vector<std::string> warnings;
+  // The common timing discrepancy of every trial's contact instant: the
+  // training force misfit above the noise (RMS) over the RMS rate of the
+  // fitted force; by Cauchy-Schwarz the largest clock shift a misfit of
+  // that size can bias a least-squares contact by (0 at the noise).
+  double timing_discrepancy_s = 0.0;
   double cost = 0.0;                         // 0.5 x sum of squared residuals (noise units)
   int n_residuals = 0;
   double force_rms_sigma = 0.0, impactor_rms_sigma = 0.0;  // training residual RMS per channel
@@ -186,7 +199,9 @@ Model6Params model6_params_at(const Eigen::VectorXd& coordinates, const Model6Fi
 // covariance (central differences through simulate_model6), the trial's
 // impact velocity SE (a held-out trial's: a training trial's own velocity
 // error is absorbed by the fit) and, with options.model_discrepancy, the
-// model's discrepancy (res.discrepancy). Needs res.reach and the training
+// model's discrepancy (res.discrepancy; with cross_validate_discrepancy a
+// held-out trial's scaled by the other held-out trials' measured errors,
+// fitting/model6_calibration.h), and res.timing_discrepancy_s. Needs res.reach and the training
 // trials' reports; fit_model6 calls it. A trial whose simulation fails
 // keeps no intervals and gets a warning. Reads no file.
 void add_model6_prediction_intervals(const std::vector<TrialData>& trials, const Model6FitOptions& options,

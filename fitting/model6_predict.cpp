@@ -21,18 +21,23 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <limits>
 #include <vector>
 
 #include "core/error.h"
 #include "core/parallel.h"
 #include "fitting/detail/summary.h"
+#include "fitting/model6_calibration.h"
 #include "fitting/model6_fit.h"
 
 namespace dropfit::fitting {
 namespace {
 
 using internal::kZ95;
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 constexpr int kExponent = 14;  // log(n - 1), the last coordinate
 
@@ -206,50 +211,157 @@ PredictionInterval interval(double value, double variance) {
   return pi;
 }
 
+// One trial's propagated part and its (uncalibrated) discrepancy.
+struct TrialPart {
+  const TrialData* data = nullptr;
+  Propagated p;
+  Model6Discrepancy d;
+  bool ok = false;
+};
+
+// The largest measured face travel over the trial's contact window.
+double measured_travel(const TrialData& td, double end_s) {
+  double top = kNaN;
+  for (Eigen::Index i = 0; i < td.t_s.size() && i < td.impactor_m.size(); ++i)
+    if (td.t_s[i] >= 0.0 && td.t_s[i] <= end_s && std::isfinite(td.impactor_m[i]))
+      top = std::isfinite(top) ? std::max(top, td.impactor_m[i]) : td.impactor_m[i];
+  return top;
+}
+
+// A held-out trial's three checks (peak force, time to peak, largest
+// travel): measured less predicted, the stated variance's parts and the
+// measured value's own noise: the force's noise for the peak; the marker's
+// and the travel reference's for the travel; for the time to peak, read on
+// the plate's samples from the fitted contact, the sample step's
+// quantisation (dt^2 / 12), the peak's jitter in the noise (sigma_F / F
+// times the peak's width squared) and the contact's SE.
+std::array<HeldOutCheck, 3> checks_of(const TrialPart& t, const TrialReport& rep, const Model6FitOptions& o) {
+  const TrialData& td = *t.data;
+  const double fn = std::isfinite(td.force_noise_n) ? td.force_noise_n : o.force_noise_n;
+  const double xn = std::isfinite(td.marker_noise_m) ? td.marker_noise_m : o.marker_noise_m;
+  const double ref = std::isfinite(td.travel_reference_se_m) ? td.travel_reference_se_m : 0.0;
+  const Eigen::Index n = td.t_s.size();
+  const double dt = (td.t_s[n - 1] - td.t_s[0]) / static_cast<double>(n - 1);
+  const double shift_se = std::isfinite(rep.contact_shift_se_s) ? rep.contact_shift_se_s : 0.0;
+  const double jitter = t.p.value.peak_n > 0.0 ? fn / t.p.value.peak_n * t.p.peak_width_s * t.p.peak_width_s : 0.0;
+  std::array<HeldOutCheck, 3> c;
+  c[0] = {rep.measured.peak_force_n - t.p.value.peak_n, t.p.var[0], t.d.peak_force_n * t.d.peak_force_n, fn * fn};
+  c[1] = {rep.measured.time_to_peak_s - t.p.value.t_peak_s, t.p.var[1], t.d.time_to_peak_s * t.d.time_to_peak_s,
+          dt * dt / 12.0 + jitter + shift_se * shift_se};
+  c[2] = {measured_travel(td, rep.window_end_s) - t.p.value.max_travel_m, t.p.var[2],
+          t.d.max_deformation_m * t.d.max_deformation_m, xn * xn + ref * ref};
+  return c;
+}
+
+// Scales each held-out trial's discrepancy by what the other held-out
+// trials' checks show (fitting/model6_calibration.h); training trials keep
+// the training misfit (their own, which their discrepancy already is).
+void cross_validate(std::vector<TrialPart>& parts, const Model6FitResult& res, const Model6FitOptions& o) {
+  std::vector<std::size_t> held;
+  std::array<std::vector<HeldOutCheck>, 3> checks;
+  for (std::size_t q = 0; q < parts.size(); ++q) {
+    if (!parts[q].ok || res.trials[q].train) continue;
+    const std::array<HeldOutCheck, 3> c = checks_of(parts[q], res.trials[q], o);
+    held.push_back(q);
+    for (int k = 0; k < 3; ++k) checks[k].push_back(c[k]);
+  }
+  std::array<std::vector<double>, 3> var;
+  for (int k = 0; k < 3; ++k) var[k] = cross_validated_discrepancy_var(checks[k]);
+  for (std::size_t h = 0; h < held.size(); ++h) {
+    Model6Discrepancy& d = parts[held[h]].d;
+    double* sd[3] = {&d.peak_force_n, &d.time_to_peak_s, &d.max_deformation_m};
+    double* scale[3] = {&d.peak_force_scale, &d.time_to_peak_scale, &d.max_deformation_scale};
+    for (int k = 0; k < 3; ++k) {
+      const double before = checks[k][h].parameter_var + checks[k][h].discrepancy_var;
+      *sd[k] = std::sqrt(var[k][h]);
+      *scale[k] = before > 0.0 ? std::sqrt((checks[k][h].parameter_var + var[k][h]) / before) : 1.0;
+    }
+  }
+}
+
+// The common timing discrepancy (Model6FitResult::timing_discrepancy_s):
+// the shift that best aligns the fitted force f with the measured one
+// moves, for a misfit m, by <m, f'> / <f', f'>, at most |m| / |f'|; RMS
+// over the training trials of the misfit above the noise over the fitted
+// force's RMS rate, on the samples of the contact window.
+double timing_discrepancy(const std::vector<TrialData>& trials, const Model6FitOptions& o, const Model6FitResult& res) {
+  double sum = 0.0;
+  int n = 0;
+  for (const TrialReport& r : res.trials) {
+    const auto td = std::find_if(trials.begin(), trials.end(), [&](const TrialData& t) { return t.id == r.id; });
+    if (!r.train || td == trials.end() || r.simulation.grf_n.size() != td->t_s.size()) continue;
+    const double fn = std::isfinite(td->force_noise_n) ? td->force_noise_n : o.force_noise_n;
+    const Eigen::VectorXd& f = r.simulation.grf_n;
+    double ss = 0.0, rate = 0.0;
+    int m = 0;
+    for (Eigen::Index i = 1; i + 1 < f.size(); ++i) {
+      if (td->t_s[i] < 0.0 || td->t_s[i] > r.window_end_s || !std::isfinite(td->grf_n[i])) continue;
+      const double d = f[i] - td->grf_n[i], df = (f[i + 1] - f[i - 1]) / (td->t_s[i + 1] - td->t_s[i - 1]);
+      ss += d * d, rate += df * df, ++m;
+    }
+    if (m == 0 || !(rate > 0.0)) continue;
+    const double dt = std::sqrt(std::max(ss / m - fn * fn, 0.0) / (rate / m));
+    sum += dt * dt, ++n;
+  }
+  return n > 0 ? std::sqrt(sum / n) : 0.0;
+}
+
+// The interval of one trial from its propagated part and discrepancy.
+void set_intervals(const TrialPart& t, Prediction& out) {
+  const Propagated& p = t.p;
+  const Model6Discrepancy& d = t.d;
+  out.peak_force_n = interval(p.value.peak_n, p.var[0] + d.peak_force_n * d.peak_force_n);
+  out.time_to_peak_s = interval(p.value.t_peak_s, p.var[1] + d.time_to_peak_s * d.time_to_peak_s);
+  out.max_deformation_m = interval(p.value.max_travel_m, p.var[2] + d.max_deformation_m * d.max_deformation_m);
+  // The band: each sample's share of the peak's discrepancy in proportion
+  // to its force.
+  const double rel = p.value.peak_n > 0.0 ? d.peak_force_n / p.value.peak_n : 0.0;
+  const Eigen::ArrayXd sd = (p.force_var.array() + (rel * p.force.array()).square()).sqrt();
+  out.force_low_n = p.force.array() - kZ95 * sd;
+  out.force_high_n = p.force.array() + kZ95 * sd;
+}
+
 }  // namespace
 
 void add_model6_prediction_intervals(const std::vector<TrialData>& trials, const Model6FitOptions& options,
                                      Model6FitResult& res) {
   res.discrepancy.clear();
+  res.timing_discrepancy_s = timing_discrepancy(trials, options, res);
   if (res.coordinates.size() != 15 || res.coordinate_covariance.rows() != 15) return;
   const Model6Discrepancy misfit = training_misfit(trials, options, res);
-  std::vector<char> failed(res.trials.size(), 0);
-  std::vector<Model6Discrepancy> disc(res.trials.size());
+  std::vector<TrialPart> parts(res.trials.size());
   parallel_for(res.trials.size(), 2, [&](std::size_t q) {
-    TrialReport& rep = res.trials[q];
+    const TrialReport& rep = res.trials[q];
     const auto td = std::find_if(trials.begin(), trials.end(), [&](const TrialData& t) { return t.id == rep.id; });
     if (td == trials.end()) return;
+    TrialPart& part = parts[q];
     try {
-      const Propagated p = propagate(*td, rep, res, options);
-      Model6Discrepancy& d = disc[q];
+      part.data = &*td;
+      part.p = propagate(*td, rep, res, options);
+      Model6Discrepancy& d = part.d;
       d.id = rep.id;
       if (options.model_discrepancy) {
         const auto r = std::find_if(res.reach.begin(), res.reach.end(), [&](const Model6Reach& x) { return x.id == rep.id; });
         d.growth = r == res.reach.end() ? 1.0 : reach_growth(*r, res);
-        d.peak_force_n = misfit.peak_force_n * p.value.peak_n * d.growth;
-        d.time_to_peak_s = misfit.peak_force_n * p.peak_width_s * d.growth;
+        d.peak_force_n = misfit.peak_force_n * part.p.value.peak_n * d.growth;
+        d.time_to_peak_s = misfit.peak_force_n * part.p.peak_width_s * d.growth;
         d.max_deformation_m = misfit.max_deformation_m * d.growth;
       }
-      Prediction& out = rep.prediction;
-      out.peak_force_n = interval(p.value.peak_n, p.var[0] + d.peak_force_n * d.peak_force_n);
-      out.time_to_peak_s = interval(p.value.t_peak_s, p.var[1] + d.time_to_peak_s * d.time_to_peak_s);
-      out.max_deformation_m = interval(p.value.max_travel_m, p.var[2] + d.max_deformation_m * d.max_deformation_m);
-      // The band: each sample's share of the peak's discrepancy in
-      // proportion to its force.
-      const double rel = p.value.peak_n > 0.0 ? d.peak_force_n / p.value.peak_n : 0.0;
-      const Eigen::ArrayXd sd = (p.force_var.array() + (rel * p.force.array()).square()).sqrt();
-      out.force_low_n = p.force.array() - kZ95 * sd;
-      out.force_high_n = p.force.array() + kZ95 * sd;
+      part.ok = true;
     } catch (const Error&) {
-      failed[q] = 1;
+      part.ok = false;
     }
   });
+  if (options.model_discrepancy && options.cross_validate_discrepancy) cross_validate(parts, res, options);
   for (std::size_t q = 0; q < res.trials.size(); ++q) {
-    if (failed[q])
+    if (parts[q].data && !parts[q].ok) {
       res.warnings.push_back(fmt::format("trial {}: no prediction intervals (the column's simulation failed)",
                                          res.trials[q].id));
-    else if (options.model_discrepancy && !disc[q].id.empty())
-      res.discrepancy.push_back(disc[q]);
+      continue;
+    }
+    if (!parts[q].ok) continue;
+    set_intervals(parts[q], res.trials[q].prediction);
+    if (options.model_discrepancy) res.discrepancy.push_back(parts[q].d);
   }
 }
 

@@ -9,6 +9,7 @@
 #include <cstring>
 
 #include "core/error.h"
+#include "fitting/model6_calibration.h"
 
 #include "pipeline/pipeline.h"
 
@@ -202,6 +203,50 @@ void replace_sync(diagnosis::DiagnosisResult& loop, const diagnosis::SyncDiagnos
   loop.notes.insert(loop.notes.begin(), sync.notes.begin(), sync.notes.end());
 }
 
+// The sync verdict on the offsets Model 6's contacts give (`results`: the
+// trials with those offsets and their SEs as fitted, before any
+// calibration; rms_se_s: the RMS of the fitted contacts' SEs).
+void judge_model6_offsets(SessionState& state, const std::vector<trial::TrialResult>& results, double rms_se_s) {
+  const Model6Stage& m6 = *state.model6;
+  // The verdict on the offsets Model 6's contacts give: the column carries
+  // the plate's delay behind the face, so no onset lag is allowed for.
+  // Each offset's SE counts Model 6's misfit of that trial as noise
+  // (fitting::predict_model6); short of the noise, their RMS widens the
+  // verdict's systematic uncertainty.
+  diagnosis::SyncStageOptions so;
+  so.onset_lag_s = 0.0;
+  const double widen_s = m6.reaches_noise ? 0.0 : rms_se_s;
+  so.systematic_s = std::hypot(so.systematic_s, widen_s);
+  diagnosis::SyncDiagnosis sync = diagnosis::diagnose_sync(results, so);
+  sync.notes.push_back(fmt::format(
+      "sync: judged on the contact instants Model 6 (the final model) fits{}",
+      m6.reaches_noise ? ""
+                       : fmt::format("; Model 6 does not reach the noise, so the offsets are model-limited: their SE "
+                                     "counts its misfit as noise ({:.2f} ms RMS), which widens the verdict",
+                                     1e3 * widen_s)));
+  replace_sync(*state.loop, sync);
+}
+
+// The reported per-trial offset SEs calibrated (fitting/model6_calibration.h):
+// each SE times the Birge ratio of the session's offsets about their
+// weighted mean (one clock offset per session: a scatter beyond the SEs
+// shows them too small), in quadrature with Model 6's common timing
+// discrepancy (a bias every trial shares). Applied after the sync verdict,
+// which weighs the model's misfit through its own systematic term.
+void calibrate_offset_ses(SessionState& state, double common_s) {
+  std::vector<trial::TrialResult*> rs;
+  std::vector<double> offsets, ses;
+  for (auto& t : state.trials) {
+    trial::TrialResult& r = t.result;
+    if (!r.accepted || !std::isfinite(r.video_offset_s) || !std::isfinite(r.video_offset_se_s)) continue;
+    rs.push_back(&r);
+    offsets.push_back(r.video_offset_s);
+    ses.push_back(r.video_offset_se_s);
+  }
+  const std::vector<double> out = fitting::calibrated_offset_ses(offsets, ses, common_s);
+  for (std::size_t i = 0; i < rs.size(); ++i) rs[i]->video_offset_se_s = out[i];
+}
+
 }  // namespace
 
 void apply_model6_offsets(SessionState& state) {
@@ -227,24 +272,8 @@ void apply_model6_offsets(SessionState& state) {
       results.back() = r;
     }
   }
-  if (!state.loop) return;
-  // The verdict on the offsets Model 6's contacts give: the column carries
-  // the plate's delay behind the face, so no onset lag is allowed for.
-  // Each offset's SE counts Model 6's misfit of that trial as noise
-  // (fitting::predict_model6); short of the noise, their RMS widens the
-  // verdict's systematic uncertainty.
-  diagnosis::SyncStageOptions so;
-  so.onset_lag_s = 0.0;
-  const double widen_s = m6.reaches_noise || n == 0 ? 0.0 : std::sqrt(ss_se / n);
-  so.systematic_s = std::hypot(so.systematic_s, widen_s);
-  diagnosis::SyncDiagnosis sync = diagnosis::diagnose_sync(results, so);
-  sync.notes.push_back(fmt::format(
-      "sync: judged on the contact instants Model 6 (the final model) fits{}",
-      m6.reaches_noise ? ""
-                       : fmt::format("; Model 6 does not reach the noise, so the offsets are model-limited: their SE "
-                                     "counts its misfit as noise ({:.2f} ms RMS), which widens the verdict",
-                                     1e3 * widen_s)));
-  replace_sync(*state.loop, sync);
+  if (state.loop) judge_model6_offsets(state, results, std::sqrt(ss_se / std::max(n, 1)));
+  calibrate_offset_ses(state, m6.fit->timing_discrepancy_s);
 }
 
 }  // namespace dropfit::pipeline

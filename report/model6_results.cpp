@@ -92,7 +92,13 @@ std::string model6_fit_json(const fitting::Model6FitResult& fit, const fitting::
         t["prediction"]["discrepancy"] = {{"growth", d.growth},
                                           {"peak_force_sd_n", d.peak_force_n},
                                           {"time_to_peak_sd_s", d.time_to_peak_s},
-                                          {"max_deformation_sd_m", d.max_deformation_m}};
+                                          {"max_deformation_sd_m", d.max_deformation_m},
+                                          {"peak_force_scale", d.peak_force_scale},
+                                          {"time_to_peak_scale", d.time_to_peak_scale},
+                                          {"max_deformation_scale", d.max_deformation_scale}};
+  // The common timing discrepancy of the contact instants (widens every
+  // trial's clock-offset SE alike).
+  doc["timing_discrepancy_s"] = fit.timing_discrepancy_s;
   doc["choice"] = {{"against", choice.rival},
                    {"chosen", choice.chosen},
                    {"evidence", choice.evidence},

@@ -174,7 +174,8 @@ TEST(Model6Fit, GeneratorFoamSecondStart) { check_generator(2425, Tolerance{0.02
 // peaks within 0.5 % of the truth). Asserted: each interval exists, is
 // finite and of a size a lab can use (peak force SE between 0.01 % and 3 %
 // of the peak, time to peak SE between 1 us and 1 ms, travel SE between
-// 0.01 and 3 mm); the model's discrepancy only widens them; every trial's
+// 0.01 and 3 mm); the model's discrepancy only widens them, and so does
+// its cross-validated scale (a training trial's not at all); every trial's
 // true peak force and largest travel lie inside their interval. The time
 // to peak's interval can be narrower than its error (its coverage over
 // many foams is in docs/validation.md): asserted only within 0.2 ms of the
@@ -184,7 +185,9 @@ TEST(Model6Fit, PredictionIntervalsHoldTheTruth) {
   const pipeline::SessionState state = pipeline::build(s.session, {.upto = pipeline::Stage::Trials});
   fitting::Model6FitOptions o = options_for(s.session.manifest);
   const fitting::Model6FitResult fit = fitting::fit_model6(state.fit_data, o);
-  fitting::Model6FitResult bare = fit;
+  fitting::Model6FitResult bare = fit, raw = fit;
+  o.cross_validate_discrepancy = false;
+  fitting::add_model6_prediction_intervals(state.fit_data, o, raw);
   o.model_discrepancy = false;
   fitting::add_model6_prediction_intervals(state.fit_data, o, bare);
   ASSERT_EQ(fit.trials.size(), s.truth.trials.size());
@@ -210,6 +213,15 @@ TEST(Model6Fit, PredictionIntervalsHoldTheTruth) {
     EXPECT_GE(p.peak_force_n.se, b.peak_force_n.se);
     EXPECT_GE(p.max_deformation_m.se, b.max_deformation_m.se);
     EXPECT_EQ(b.peak_force_n.value, p.peak_force_n.value);
+    // The cross-validated scale only widens a held-out trial's interval
+    // and leaves a training trial's as its own misfit states it.
+    const fitting::Prediction& r = raw.trials[k].prediction;
+    const double tol = 1.0 + 1e-12;
+    EXPECT_GE(p.peak_force_n.se * tol, r.peak_force_n.se);
+    EXPECT_GE(p.time_to_peak_s.se * tol, r.time_to_peak_s.se);
+    EXPECT_GE(p.max_deformation_m.se * tol, r.max_deformation_m.se);
+    EXPECT_NEAR(fit.discrepancy[k].peak_force_scale, p.peak_force_n.se / r.peak_force_n.se, 1e-9);
+    if (fit.trials[k].train) EXPECT_DOUBLE_EQ(p.peak_force_n.se, r.peak_force_n.se);
     EXPECT_GE(truth.peak_force_n, p.peak_force_n.low);
     EXPECT_LE(truth.peak_force_n, p.peak_force_n.high);
     EXPECT_GE(truth.max_deformation_m, p.max_deformation_m.low);
