@@ -10,6 +10,7 @@
 #include <utility>
 
 #include "core/error.h"
+#include "fitting/detail/summary.h"
 #include "fitting/detail/uncertainty.h"
 
 namespace dropfit::fitting::internal {
@@ -17,7 +18,6 @@ namespace dropfit::fitting::internal {
 namespace {
 
 constexpr double kChi2One95 = 3.841459;  // chi-square, one degree of freedom, 95 %
-constexpr double kZ95 = 1.959964;
 
 // The other pair (top, bottom) of a two-mass chain with the same natural
 // frequencies: top mass ma on spring xt over mass mb on spring xb to the

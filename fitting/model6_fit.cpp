@@ -211,19 +211,25 @@ class TrialCostFunction : public ceres::CostFunction {
   TrialCost cost_;
 };
 
+}  // namespace
+
+// The fastest impact (one impactor mass) drives both foams furthest, so
+// every other trial's strains lie inside what training showed of each law.
+const TrialData* deepest_trial(const std::vector<TrialData>& trials) {
+  const TrialData* out = nullptr;
+  for (const TrialData& t : trials)
+    if (t.accepted && (!out || t.impact_velocity_m_s > out->impact_velocity_m_s)) out = &t;
+  return out;
+}
+
+namespace {
+
 std::vector<const TrialData*> training(const std::vector<TrialData>& trials, const std::vector<std::string>& ids) {
   std::vector<const TrialData*> out;
   if (ids.empty()) {
-    std::vector<const TrialData*> acc;
-    for (const auto& t : trials)
-      if (t.accepted) acc.push_back(&t);
-    if (acc.empty()) throw Error("fit_model6: no accepted trial");
-    // The deepest: the fastest impact (one impactor mass) drives both foams
-    // furthest, so every other trial's strains lie inside what training
-    // showed of each law.
-    out.push_back(*std::max_element(acc.begin(), acc.end(), [](const TrialData* a, const TrialData* b) {
-      return a->impact_velocity_m_s < b->impact_velocity_m_s;
-    }));
+    const TrialData* deepest = deepest_trial(trials);
+    if (!deepest) throw Error("fit_model6: no accepted trial");
+    out.push_back(deepest);
     return out;
   }
   for (const auto& id : ids) {

@@ -183,6 +183,11 @@ struct Model6FitResult {
   double seconds = 0.0;
 };
 
+// The accepted trial Model6FitOptions::train_ids defaults to: the highest
+// impact velocity (one impactor mass: the deepest impact). nullptr when no
+// trial is accepted.
+const TrialData* deepest_trial(const std::vector<TrialData>& trials);
+
 // Throws Error for unusable input (no accepted trial, unknown train id).
 Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6FitOptions& options);
 

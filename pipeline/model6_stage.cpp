@@ -115,10 +115,8 @@ std::optional<fitting::Model6FitResult> EarlyModel6::take(const std::vector<fitt
 
 std::vector<std::string> model6_train_ids(const std::vector<fitting::TrialData>& accepted,
                                           const std::vector<std::string>& rival_train_ids) {
-  const auto deepest = std::max_element(accepted.begin(), accepted.end(), [](const auto& a, const auto& b) {
-    return a.impact_velocity_m_s < b.impact_velocity_m_s;
-  });
-  if (deepest == accepted.end()) return {};
+  const fitting::TrialData* deepest = fitting::deepest_trial(accepted);
+  if (!deepest) return {};
   int both_hold_out = 0;
   for (const auto& t : accepted)
     if (t.id != deepest->id && std::find(rival_train_ids.begin(), rival_train_ids.end(), t.id) == rival_train_ids.end())

@@ -221,7 +221,9 @@ TEST(Model6Fit, PredictionIntervalsHoldTheTruth) {
     EXPECT_GE(p.time_to_peak_s.se * tol, r.time_to_peak_s.se);
     EXPECT_GE(p.max_deformation_m.se * tol, r.max_deformation_m.se);
     EXPECT_NEAR(fit.discrepancy[k].peak_force_scale, p.peak_force_n.se / r.peak_force_n.se, 1e-9);
-    if (fit.trials[k].train) EXPECT_DOUBLE_EQ(p.peak_force_n.se, r.peak_force_n.se);
+    if (fit.trials[k].train) {
+      EXPECT_DOUBLE_EQ(p.peak_force_n.se, r.peak_force_n.se);
+    }
     EXPECT_GE(truth.peak_force_n, p.peak_force_n.low);
     EXPECT_LE(truth.peak_force_n, p.peak_force_n.high);
     EXPECT_GE(truth.max_deformation_m, p.max_deformation_m.low);
