@@ -29,7 +29,8 @@
 // as fitted and as calibrated, fitting/model6_calibration.h); a
 // machine-readable `ROW id train growth` line (per quantity: value, truth,
 // the parameters' and velocity's SE, the discrepancy's SD) and the time
-// the intervals take; at the end their coverage over all sessions.
+// the intervals take; at the end their coverage over all sessions (the
+// truth inside [low, high]: Student's t where the discrepancy was scaled).
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
@@ -104,7 +105,7 @@ void score_intervals(const fitting::Model6FitResult& fit, const std::vector<fitt
         const double tv[3] = {t.peak_n, t.time_to_peak_s, t.max_deformation_m};
         for (int q = 0; q < 3; ++q) {
           const double z = (iv[q]->value - tv[q]) / iv[q]->se;
-          g_coverage.hit[tr][w][q] += std::abs(z) <= 1.959964 ? 1 : 0;
+          g_coverage.hit[tr][w][q] += tv[q] >= iv[q]->low && tv[q] <= iv[q]->high ? 1 : 0;
           g_coverage.z2[tr][w][q] += std::isfinite(z) ? z * z : 1e4;
           std::printf(" %s %+6.2f", q > 0 ? "" : w == 0 ? "z(peak,tpk,travel)" : w == 1 ? " | uncalibrated" : " | bare", z);
         }

@@ -39,6 +39,7 @@
 // apart by about what it biases the shift). The
 // derivatives: two 8-wide Jet passes on two threads.
 #include <atomic>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -143,11 +144,16 @@ struct Model6Reach {
 // densification coordinate (1 within their reach), and for a held-out
 // trial with cross_validate_discrepancy the cross-validated widening
 // (`*_scale`: the interval's SE over the uncalibrated one, at least 1).
+// `*_dof`: the interval's degrees of freedom (Student's t; infinite, the
+// normal's 1.96, unless the discrepancy was scaled by other trials).
 struct Model6Discrepancy {
   std::string id;
   double growth = 1.0;
   double peak_force_n = 0.0, time_to_peak_s = 0.0, max_deformation_m = 0.0;
   double peak_force_scale = 1.0, time_to_peak_scale = 1.0, max_deformation_scale = 1.0;
+  double peak_force_dof = std::numeric_limits<double>::infinity();
+  double time_to_peak_dof = std::numeric_limits<double>::infinity();
+  double max_deformation_dof = std::numeric_limits<double>::infinity();
 };
 
 struct Model6FitResult {

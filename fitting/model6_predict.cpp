@@ -35,8 +35,6 @@
 namespace dropfit::fitting {
 namespace {
 
-using internal::kZ95;
-
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 constexpr int kExponent = 14;  // log(n - 1), the last coordinate
@@ -202,12 +200,15 @@ double reach_growth(const Model6Reach& r, const Model6FitResult& res) {
   return std::pow(g, res.params.top.densification_exponent);
 }
 
-PredictionInterval interval(double value, double variance) {
+// A 95 % interval of a value with the stated variance, on Student's t
+// with `dof` degrees of freedom (the normal's quantile for an infinite dof).
+PredictionInterval interval(double value, double variance, double dof) {
   PredictionInterval pi;
   pi.value = value;
   pi.se = std::sqrt(variance);
-  pi.low = value - kZ95 * pi.se;
-  pi.high = value + kZ95 * pi.se;
+  const double q = t_quantile_95(dof);
+  pi.low = value - q * pi.se;
+  pi.high = value + q * pi.se;
   return pi;
 }
 
@@ -253,27 +254,69 @@ std::array<HeldOutCheck, 3> checks_of(const TrialPart& t, const TrialReport& rep
   return c;
 }
 
-// Scales each held-out trial's discrepancy by what the other held-out
-// trials' checks show (fitting/model6_calibration.h); training trials keep
+// How far an impact is from the nearest training impact in energy (one
+// impactor mass): |1 - v^2 / v_train^2|; 1 where either is unknown.
+double energy_distance(double v, const std::vector<double>& train_v2) {
+  double out = kNaN;
+  for (double t : train_v2)
+    if (t > 0.0 && std::isfinite(t) && std::isfinite(v)) {
+      const double d = std::abs(1.0 - v * v / t);
+      out = std::isfinite(out) ? std::min(out, d) : d;
+    }
+  return std::isfinite(out) ? out : 1.0;
+}
+
+// Widens each held-out trial's discrepancy by what the other held-out
+// trials' checks show, in proportion to its squared energy distance from
+// the training impact (fitting/model6_calibration.h); training trials keep
 // the training misfit (their own, which their discrepancy already is).
+// A discrepancy variance read from n other trials is itself uncertain
+// (n degrees of freedom): the interval takes Student's t at the
+// Welch-Satterthwaite degrees of freedom of the parameters' variance
+// (known) plus that estimate.
 void cross_validate(std::vector<TrialPart>& parts, const Model6FitResult& res, const Model6FitOptions& o) {
+  std::vector<double> train_v2;
+  for (std::size_t q = 0; q < parts.size(); ++q)
+    if (parts[q].data && res.trials[q].train) train_v2.push_back(std::pow(parts[q].data->impact_velocity_m_s, 2));
   std::vector<std::size_t> held;
   std::array<std::vector<HeldOutCheck>, 3> checks;
   for (std::size_t q = 0; q < parts.size(); ++q) {
     if (!parts[q].ok || res.trials[q].train) continue;
-    const std::array<HeldOutCheck, 3> c = checks_of(parts[q], res.trials[q], o);
+    std::array<HeldOutCheck, 3> c = checks_of(parts[q], res.trials[q], o);
+    const double d = energy_distance(parts[q].data->impact_velocity_m_s, train_v2);
     held.push_back(q);
-    for (int k = 0; k < 3; ++k) checks[k].push_back(c[k]);
+    for (int k = 0; k < 3; ++k) {
+      c[k].distance = d;
+      checks[k].push_back(c[k]);
+    }
   }
   std::array<std::vector<double>, 3> var;
-  for (int k = 0; k < 3; ++k) var[k] = cross_validated_discrepancy_var(checks[k]);
+  std::array<std::vector<int>, 3> dof;
+  for (int k = 0; k < 3; ++k) {
+    var[k] = cross_validated_discrepancy_var(checks[k]);
+    dof[k] = cross_validated_dof(checks[k]);
+  }
+  // The time to peak's discrepancy is the peak's relative shape error times
+  // the peak's width: where the peak's checks scale that shape error, the
+  // time taken from the same shape grows alike. Its own checks seldom can:
+  // the measured time to peak carries the plate's sampling (dt^2 / 12) and
+  // the broad top's jitter, a few tenths of a millisecond, and the column's
+  // timing error hides below that.
+  for (std::size_t h = 0; h < held.size(); ++h) {
+    const double own = checks[0][h].discrepancy_var;
+    if (!(own > 0.0)) continue;
+    const double from_peak = checks[1][h].discrepancy_var * var[0][h] / own;
+    if (from_peak > var[1][h]) var[1][h] = from_peak, dof[1][h] = dof[0][h];
+  }
   for (std::size_t h = 0; h < held.size(); ++h) {
     Model6Discrepancy& d = parts[held[h]].d;
     double* sd[3] = {&d.peak_force_n, &d.time_to_peak_s, &d.max_deformation_m};
     double* scale[3] = {&d.peak_force_scale, &d.time_to_peak_scale, &d.max_deformation_scale};
+    double* dofs[3] = {&d.peak_force_dof, &d.time_to_peak_dof, &d.max_deformation_dof};
     for (int k = 0; k < 3; ++k) {
       const double before = checks[k][h].parameter_var + checks[k][h].discrepancy_var;
       *sd[k] = std::sqrt(var[k][h]);
+      *dofs[k] = welch_dof(checks[k][h].parameter_var, var[k][h], dof[k][h]);
       *scale[k] = before > 0.0 ? std::sqrt((checks[k][h].parameter_var + var[k][h]) / before) : 1.0;
     }
   }
@@ -310,15 +353,17 @@ double timing_discrepancy(const std::vector<TrialData>& trials, const Model6FitO
 void set_intervals(const TrialPart& t, Prediction& out) {
   const Propagated& p = t.p;
   const Model6Discrepancy& d = t.d;
-  out.peak_force_n = interval(p.value.peak_n, p.var[0] + d.peak_force_n * d.peak_force_n);
-  out.time_to_peak_s = interval(p.value.t_peak_s, p.var[1] + d.time_to_peak_s * d.time_to_peak_s);
-  out.max_deformation_m = interval(p.value.max_travel_m, p.var[2] + d.max_deformation_m * d.max_deformation_m);
+  out.peak_force_n = interval(p.value.peak_n, p.var[0] + d.peak_force_n * d.peak_force_n, d.peak_force_dof);
+  out.time_to_peak_s = interval(p.value.t_peak_s, p.var[1] + d.time_to_peak_s * d.time_to_peak_s, d.time_to_peak_dof);
+  out.max_deformation_m =
+      interval(p.value.max_travel_m, p.var[2] + d.max_deformation_m * d.max_deformation_m, d.max_deformation_dof);
   // The band: each sample's share of the peak's discrepancy in proportion
-  // to its force.
+  // to its force, on the peak's degrees of freedom.
   const double rel = p.value.peak_n > 0.0 ? d.peak_force_n / p.value.peak_n : 0.0;
   const Eigen::ArrayXd sd = (p.force_var.array() + (rel * p.force.array()).square()).sqrt();
-  out.force_low_n = p.force.array() - kZ95 * sd;
-  out.force_high_n = p.force.array() + kZ95 * sd;
+  const double q = t_quantile_95(d.peak_force_dof);
+  out.force_low_n = p.force.array() - q * sd;
+  out.force_high_n = p.force.array() + q * sd;
 }
 
 }  // namespace

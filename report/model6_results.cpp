@@ -85,7 +85,8 @@ std::string model6_fit_json(const fitting::Model6FitResult& fit, const fitting::
   doc["strain_reach"] = reach;
   doc["strain_reach_ratio"] = options.extrapolation_ratio;
   // The model's discrepancy each trial's prediction interval holds beside
-  // the parameters' and the velocity's part (SDs), in its prediction.
+  // the parameters' and the velocity's part (SDs), in its prediction; an
+  // infinite dof (the normal's quantile) is written as null.
   for (auto& t : doc["trials"])
     for (const auto& d : fit.discrepancy)
       if (t["id"] == d.id)
@@ -95,7 +96,10 @@ std::string model6_fit_json(const fitting::Model6FitResult& fit, const fitting::
                                           {"max_deformation_sd_m", d.max_deformation_m},
                                           {"peak_force_scale", d.peak_force_scale},
                                           {"time_to_peak_scale", d.time_to_peak_scale},
-                                          {"max_deformation_scale", d.max_deformation_scale}};
+                                          {"max_deformation_scale", d.max_deformation_scale},
+                                          {"peak_force_dof", d.peak_force_dof},
+                                          {"time_to_peak_dof", d.time_to_peak_dof},
+                                          {"max_deformation_dof", d.max_deformation_dof}};
   // The common timing discrepancy of the contact instants (widens every
   // trial's clock-offset SE alike).
   doc["timing_discrepancy_s"] = fit.timing_discrepancy_s;

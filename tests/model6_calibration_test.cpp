@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <vector>
 
 namespace dropfit::fitting {
@@ -39,17 +40,72 @@ TEST(Model6Calibration, NeverNarrowerThanTheTrainingMisfit) {
 }
 
 TEST(Model6Calibration, WholeVarianceScaledWithoutDiscrepancy) {
-  // No training misfit in the quantity: the stated variance (100 N^2) is
-  // scaled by the others' (r^2 - noise) over theirs, 111000 / 300 for
-  // trial 1, the excess carried as its discrepancy.
+  // No training misfit in the quantity: the others' excess over their
+  // stated variance (111000 N^2 for trial 1) is shared in proportion to the
+  // stated variance (100 N^2 of their 300), carried as its discrepancy.
   const std::vector<double> v = cross_validated_discrepancy_var(four_peaks(0.0));
-  EXPECT_NEAR(v[0], (111000.0 / 300.0 - 1.0) * 100.0, 1e-6);
+  EXPECT_NEAR(v[0], 100.0 * 111000.0 / 300.0, 1e-6);
+}
+
+TEST(Model6Calibration, ExcessGrowsWithTheDistanceFromTraining) {
+  // The four peaks at energy distances 0.1, 0.2, 0.3 and 0.5 from the
+  // training impact: shape w = distance^2 x 2500 N^2. Trial 4 from trials
+  // 1-3: excesses 87000, 59500, 37000 N^2 over w = 25, 100, 225, each
+  // e / w weighted by w^2 / (3000 + kappa^2 w)^2: kappa^2 = 1315.865 at the
+  // fixed point (computed apart, in double precision), so 2500 + 625 x
+  // kappa^2; trial 1 from trials 2-4 (59500, 37000, 7000 over 100, 225,
+  // 625): kappa^2 = 237.046, 2500 + 25 x kappa^2.
+  std::vector<HeldOutCheck> c = four_peaks(2500.0);
+  const double d[4] = {0.1, 0.2, 0.3, 0.5};
+  for (int i = 0; i < 4; ++i) c[i].distance = d[i];
+  const std::vector<double> v = cross_validated_discrepancy_var(c);
+  EXPECT_NEAR(v[3], 824915.591, 1e-2);
+  EXPECT_NEAR(v[0], 8426.162, 1e-2);
+  // Every other trial at the training impact's energy: no distance to
+  // share by, the equal shares of the training misfit's shape.
+  for (int i = 0; i < 3; ++i) c[i].distance = 0.0;
+  EXPECT_NEAR(cross_validated_discrepancy_var(c)[3], 2500.0 + 2500.0 * 183500.0 / 7500.0, 1e-6);
+}
+
+TEST(Model6Calibration, OneHugeStatedVarianceDoesNotCancelTheOthers) {
+  // A fifth held-out peak whose parameters' SE is 10 kN (a prediction near
+  // a switch between two humps) and whose residual is 0: its excess of
+  // -1e8 N^2 would cancel the others' in a plain sum (trial 1 left at its
+  // 2500 N^2); weighted by its variance it tells almost nothing, and trial
+  // 1's variance stays the 37000 N^2 trials 2-4 show (within 0.1 %).
+  std::vector<HeldOutCheck> c = four_peaks(2500.0);
+  c.push_back({0.0, 1e8, 2500.0, 400.0});
+  EXPECT_NEAR(cross_validated_discrepancy_var(c)[0], 37000.0, 37.0);
 }
 
 TEST(Model6Calibration, TooFewOtherTrialsLeaveItUnchanged) {
   std::vector<HeldOutCheck> c = four_peaks(2500.0);
   c.resize(2);
   for (double v : cross_validated_discrepancy_var(c)) EXPECT_DOUBLE_EQ(v, 2500.0);
+}
+
+TEST(Model6Calibration, DegreesOfFreedomOfTheScaledDiscrepancy) {
+  // Four held-out checks: each scaled by the three others; one without a
+  // residual leaves two others to the rest (and is itself scaled by three).
+  std::vector<HeldOutCheck> c = four_peaks(2500.0);
+  for (int d : cross_validated_dof(c)) EXPECT_EQ(d, 3);
+  c[1].residual = std::nan("");
+  EXPECT_EQ(cross_validated_dof(c), (std::vector<int>{2, 3, 2, 2}));
+  c.resize(2);
+  EXPECT_EQ(cross_validated_dof(c), (std::vector<int>{0, 0}));
+}
+
+TEST(Model6Calibration, WelchSatterthwaiteAndStudentQuantile) {
+  // All of the variance estimated from 3 others: 3 degrees of freedom;
+  // an equal known part: (1 + 1)^2 / (1 / 3) = 12.
+  EXPECT_NEAR(welch_dof(0.0, 1.0, 3.0), 3.0, 1e-12);
+  EXPECT_NEAR(welch_dof(1.0, 1.0, 3.0), 12.0, 1e-12);
+  EXPECT_TRUE(std::isinf(welch_dof(1.0, 0.0, 3.0)));
+  EXPECT_TRUE(std::isinf(welch_dof(1.0, 1.0, 0.0)));
+  // Two-sided 95 % points of Student's t (any t table, six decimals).
+  EXPECT_NEAR(t_quantile_95(3.0), 3.182446, 1e-6);
+  EXPECT_NEAR(t_quantile_95(12.0), 2.178813, 1e-6);
+  EXPECT_NEAR(t_quantile_95(std::numeric_limits<double>::infinity()), 1.959964, 1e-6);
 }
 
 TEST(Model6Calibration, BirgeRatioOfScatteredOffsets) {
