@@ -293,11 +293,12 @@ std::pair<Eigen::VectorXd, Eigen::VectorXd> held_out_chi2(const std::vector<Prof
 
 // The mat's own rival to a filter: a layered mat (Models 3 and 4 with the
 // declared split) refitted jointly without a filter with its layer masses
-// free (the total fixed), from the profile's joint optimum. More mass in
-// the top layer delays and rounds the plate force's rise as a low-pass
-// does; a lumped model with the wrong split showed a 312-500 Hz filter
-// where none was (the generator's independent world, layer masses moved by
-// 0.9 kg). Empty where the masses are already free or there are none.
+// free (the total fixed), from the profile's joint optimum. The split sets
+// how fast the plate force rises after the contact, as a low-pass's delay
+// and rounding do; a lumped model with the wrong split showed a 312-500 Hz
+// filter where none was (the generator's independent world, 0.7-1.1 kg
+// moved between the layers). Empty where the masses are already free or
+// there are none.
 std::optional<ProfilePoint> mass_rival(const std::vector<fitting::TrialData>& acc, const fitting::FitOptions& wide,
                                        const ProfilePoint& none) {
   if (wide.masses_free || (wide.model != fitting::ModelKind::Model3 && wide.model != fitting::ModelKind::Model4))
@@ -319,8 +320,8 @@ std::optional<ProfilePoint> mass_rival(const std::vector<fitting::TrialData>& ac
 // interval, the held-out and information-criterion tests, the mat's rival
 // (the layer masses), the effect or the rejection.
 LowpassDiagnosis judge_lowpass(const std::vector<fitting::TrialData>& acc, const fitting::FitOptions& model,
-                               const std::vector<ProfilePoint>& pts, const std::optional<ProfilePoint>& rival,
-                               const LowpassStageOptions& options, LowpassDiagnosis out) {
+                               const std::vector<ProfilePoint>& pts, const LowpassStageOptions& options,
+                               LowpassDiagnosis out) {
   std::size_t m = 0;
   for (std::size_t i = 1; i < pts.size(); ++i)
     if (pts[i].chi2 < pts[m].chi2) m = i;
@@ -357,22 +358,24 @@ LowpassDiagnosis judge_lowpass(const std::vector<fitting::TrialData>& acc, const
       curve);
   // A filter the layer masses explain as well (within the interval's
   // chi-square) is not told from them: neither is named, and the
-  // profile's lag stays ambiguous.
+  // profile's lag stays ambiguous. The rival is fitted only for a filter
+  // that would be named.
+  const bool passes = best.delay_s > 0.0 && v.keep() && out.delay_low_s > 0.0;
+  const std::optional<ProfilePoint> rival = passes ? mass_rival(acc, model, none) : std::nullopt;
   const double mass_gain = rival ? scale * (none.chi2 - rival->chi2) : 0.0;
-  const bool masses_explain = rival && gain - mass_gain < options.interval_chi2;
-  if (best.delay_s > 0.0 && v.keep() && out.delay_low_s > 0.0 && masses_explain) {
+  if (rival && gain - mass_gain < options.interval_chi2) {
     const double m1 = fitting::get_parameter(rival->params, "m1_kg"), m1_0 = fitting::get_parameter(none.params, "m1_kg");
     out.rejected.push_back(
         {"forceplate", "force_lowpass",
          fmt::format("{}; but the mat's layer masses, refitted without a filter (m1 {:.2f} kg where the split "
                      "gives {:.2f} kg, the total fixed), lower the chi-square by {:.1f} against the filter's {:.1f}: "
-                     "a heavier top layer delays and rounds the plate force's rise as a low-pass does, and the "
-                     "two are not told apart here; neither is named",
+                     "the split sets how fast the plate force rises after the contact, as a low-pass does, and "
+                     "the two are not told apart here; neither is named",
                      profile, m1, m1_0, mass_gain, gain)});
     out.delay_low_s = 0.0;
     return out;
   }
-  if (best.delay_s > 0.0 && v.keep() && out.delay_low_s > 0.0) {
+  if (passes) {
     out.named = true;
     out.delay_s = best.delay_s;
     out.corner_hz = corner_of(best.delay_s);
@@ -455,7 +458,7 @@ LowpassDiagnosis diagnose_force_lowpass(const std::vector<fitting::TrialData>& t
     return out;
   }
   out.tried = true;
-  return judge_lowpass(acc, wide, pts, mass_rival(acc, wide, pts.front()), options, std::move(out));
+  return judge_lowpass(acc, wide, pts, options, std::move(out));
 }
 
 }  // namespace dropfit::diagnosis
