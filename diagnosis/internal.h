@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "core/line_fit.h"
 #include "diagnosis/diagnosis.h"
 
 namespace dropfit::diagnosis::detail {
@@ -61,38 +62,9 @@ inline double mean_without(const Eigen::VectorXd& v, Eigen::Index i) {
   return (v.sum() - v(i)) / static_cast<double>(v.size() - 1);
 }
 
-// Ordinary least-squares line y = intercept + slope x with the slope's
-// standard error from the scatter about the line (n - 2 degrees of freedom).
-// ok is false with fewer than three points or no spread in x.
-struct LineFit {
-  bool ok = false;
-  double slope = 0.0, intercept = 0.0, slope_se = 0.0;
-  double r2 = 0.0;  // share of y's variance about its mean the line explains
-};
-
-inline LineFit fit_line(const std::vector<double>& x, const std::vector<double>& y) {
-  LineFit f;
-  const std::size_t n = std::min(x.size(), y.size());
-  if (n < 3) return f;
-  double mx = 0.0, my = 0.0;
-  for (std::size_t k = 0; k < n; ++k) mx += x[k], my += y[k];
-  mx /= static_cast<double>(n), my /= static_cast<double>(n);
-  double sxx = 0.0, sxy = 0.0, syy = 0.0;
-  for (std::size_t k = 0; k < n; ++k) {
-    sxx += (x[k] - mx) * (x[k] - mx);
-    sxy += (x[k] - mx) * (y[k] - my);
-    syy += (y[k] - my) * (y[k] - my);
-  }
-  if (!(sxx > 0.0)) return f;
-  f.ok = true;
-  f.slope = sxy / sxx;
-  f.intercept = my - f.slope * mx;
-  double rss = 0.0;
-  for (std::size_t k = 0; k < n; ++k) rss += std::pow(y[k] - f.intercept - f.slope * x[k], 2);
-  f.slope_se = std::sqrt(rss / (static_cast<double>(n) - 2.0) / sxx);
-  f.r2 = syy > 0.0 ? 1.0 - rss / syy : 0.0;
-  return f;
-}
+// The least-squares line (core/line_fit.h).
+using dropfit::fit_line;
+using dropfit::LineFit;
 
 inline double sample_sd(const Eigen::VectorXd& v) {
   if (v.size() < 2) return 0.0;

@@ -33,7 +33,9 @@
 #include <Eigen/Dense>
 #include <cmath>
 #include <limits>
+#include <vector>
 
+#include "core/line_fit.h"
 #include "forceplate/forceplate.h"
 
 namespace dropfit::forceplate {
@@ -41,29 +43,12 @@ namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
-struct Line {
-  bool ok = false;
-  double t_mid_s = 0.0, level_n = 0.0, slope_n_s = 0.0, slope_se_n_s = 0.0, sd_n = 0.0;
-  double at(double t_s) const { return level_n + slope_n_s * (t_s - t_mid_s); }
-};
-
-// Least-squares line through (t[k], y[k]) for k in [first, end).
-Line fit_line(const Eigen::VectorXd& t, const Eigen::VectorXd& y, Eigen::Index first, Eigen::Index end) {
-  Line l;
-  const Eigen::Index n = end - first;
-  if (n < 10) return l;
-  const Eigen::VectorXd ts = t.segment(first, n), ys = y.segment(first, n);
-  l.t_mid_s = ts.mean();
-  l.level_n = ys.mean();
-  const Eigen::ArrayXd dt = ts.array() - l.t_mid_s;
-  const double sxx = dt.square().sum();
-  if (!(sxx > 0.0)) return l;
-  l.slope_n_s = (dt * (ys.array() - l.level_n)).sum() / sxx;
-  const double rss = (ys.array() - l.level_n - l.slope_n_s * dt).square().sum();
-  l.sd_n = std::sqrt(rss / static_cast<double>(n - 2));
-  l.slope_se_n_s = l.sd_n / std::sqrt(sxx);
-  l.ok = true;
-  return l;
+// The least-squares line through (t[k], y[k]) for k in [first, end) (N
+// against s); not ok with fewer than 10 samples.
+LineFit line_over(const Eigen::VectorXd& t, const Eigen::VectorXd& y, Eigen::Index first, Eigen::Index end) {
+  if (end - first < 10) return {};
+  const auto span = [&](const Eigen::VectorXd& v) { return std::vector<double>(v.data() + first, v.data() + end); };
+  return fit_line(span(t), span(y));
 }
 
 // The load channel c shares (file comment); empty when there is none.
@@ -129,17 +114,17 @@ ChannelStep find_channel_step(const ForceTrial& trial, double unloaded_from_s, d
   to = from;
   while (to < n && t(to) <= unloaded_to_s) ++to;
   if (from < quiet_end || to - from < 20) return out;
-  double worst_excess = 0.0;
+  const double t_end = t(quiet_end - 1), t_start = t(from);
+  double worst_excess = 0.0, zero_n = 0.0;  // zero_n: the stepped channel's level before, at the quiet part's end
   for (Eigen::Index c = 0; c < x.cols(); ++c) {
     const Eigen::VectorXd y = x.col(c);
-    const Line before = fit_line(t, y, 0, quiet_end), after = fit_line(t, y, from, to);
+    const LineFit before = line_over(t, y, 0, quiet_end), after = line_over(t, y, from, to);
     if (!before.ok || !after.ok) continue;
-    const double t_end = t(quiet_end - 1), t_start = t(from);
     const double jump = after.at(t_start) - before.at(t_end);
-    const double slope = std::max(std::abs(before.slope_n_s) + 2.0 * before.slope_se_n_s,
-                                  std::abs(after.slope_n_s) + 2.0 * after.slope_se_n_s);
+    const double slope = std::max(std::abs(before.slope) + 2.0 * before.slope_se,
+                                  std::abs(after.slope) + 2.0 * after.slope_se);
     const double drift = slope * (t_start - t_end);
-    const double noise = std::max(before.sd_n, 1e-3);
+    const double noise = std::max(before.residual_sd, 1e-3);
     const double excess = std::abs(jump) - drift;
     const double ratio = excess / noise;
     if (ratio > out.excess_noise_ratio || !std::isfinite(out.excess_noise_ratio)) {
@@ -153,6 +138,7 @@ ChannelStep find_channel_step(const ForceTrial& trial, double unloaded_from_s, d
       out.unloaded_from_s = t_start;
       out.unloaded_to_s = t(to - 1);
       worst_excess = excess;
+      zero_n = before.at(t_end);
       out.time_s = kNaN;
       out.column = static_cast<int>(c);
     }
@@ -166,7 +152,7 @@ ChannelStep find_channel_step(const ForceTrial& trial, double unloaded_from_s, d
   Eigen::Index k = from;
   while (k < to && std::isfinite(out.time_s) && t(k) < out.time_s) ++k;
   if (k > from && to - k >= 20)
-    out.size_n = fit_line(t, y, k, to).at(t(k)) - fit_line(t, y, 0, quiet_end).at(t(quiet_end - 1));
+    out.size_n = line_over(t, y, k, to).at(t(k)) - zero_n;
   return out;
 }
 
