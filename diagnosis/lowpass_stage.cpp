@@ -295,10 +295,9 @@ std::pair<Eigen::VectorXd, Eigen::VectorXd> held_out_chi2(const std::vector<Prof
 // declared split) refitted jointly without a filter with its layer masses
 // free (the total fixed), from the profile's joint optimum. The split sets
 // how fast the plate force rises after the contact, as a low-pass's delay
-// and rounding do; a lumped model with the wrong split showed a 312-500 Hz
-// filter where none was (the generator's independent world, 0.7-1.1 kg
-// moved between the layers). Empty where the masses are already free or
-// there are none.
+// and rounding do, so a lumped model with the wrong split reads as a
+// filtered force channel (docs/diagnosis.md). Empty where the masses are
+// already free or there are none.
 std::optional<ProfilePoint> mass_rival(const std::vector<fitting::TrialData>& acc, const fitting::FitOptions& wide,
                                        const ProfilePoint& none) {
   if (wide.masses_free || (wide.model != fitting::ModelKind::Model3 && wide.model != fitting::ModelKind::Model4))
@@ -364,7 +363,8 @@ LowpassDiagnosis judge_lowpass(const std::vector<fitting::TrialData>& acc, const
   const std::optional<ProfilePoint> rival = passes ? mass_rival(acc, model, none) : std::nullopt;
   const double mass_gain = rival ? scale * (none.chi2 - rival->chi2) : 0.0;
   if (rival && gain - mass_gain < options.interval_chi2) {
-    const double m1 = fitting::get_parameter(rival->params, "m1_kg"), m1_0 = fitting::get_parameter(none.params, "m1_kg");
+    const double m1 = fitting::get_parameter(rival->params, "m1_kg");
+    const double m1_0 = fitting::get_parameter(none.params, "m1_kg");
     out.rejected.push_back(
         {"forceplate", "force_lowpass",
          fmt::format("{}; but the mat's layer masses, refitted without a filter (m1 {:.2f} kg where the split "

@@ -19,8 +19,8 @@ namespace {
 // w_j)^2, the inverse of its variance (r_j^2 scatters as chi-square with
 // one degree of freedom about its expectation), iterated to its fixed
 // point. A check whose stated variance dwarfs its shape (a peak whose
-// parameters' SE is several per cent) then tells little, where a plain sum
-// let its large negative excess cancel every other trial's.
+// parameters' SE is several per cent) then tells little; in a plain sum its
+// large negative excess would cancel every other trial's.
 double shape_scale(const std::vector<double>& excess, const std::vector<double>& w, const std::vector<double>& stated) {
   double k2 = 0.0;
   for (int it = 0; it < 100; ++it) {
@@ -61,7 +61,9 @@ std::vector<double> cross_validated_discrepancy_var(const std::vector<HeldOutChe
       continue;
     }
     const bool by_misfit = share / static_cast<double>(others.size()) >= min_discrepancy_share;
-    auto base = [&](const HeldOutCheck& x) { return by_misfit ? x.discrepancy_var : x.parameter_var + x.discrepancy_var; };
+    auto base = [&](const HeldOutCheck& x) {
+      return by_misfit ? x.discrepancy_var : x.parameter_var + x.discrepancy_var;
+    };
     double shaped = 0.0, flat = 0.0;
     for (const HeldOutCheck* o : others) shaped += o->distance * o->distance * base(*o), flat += base(*o);
     const bool by_distance = shaped > 1e-9 * flat;

@@ -10,9 +10,7 @@
 // own interval), never below the training trials' misfit it starts from,
 // in proportion to its squared distance from the training trials: a law
 // fitted on one impact errs little near it and more the further a trial's
-// impact is from it (on 45 generator foams and c1, c2, c6 the held-out
-// peak's RMS error grew from 0.3 % to 1.3 % of the peak as the impact
-// energy moved from within 20 % to 46-61 % of the training impact's).
+// impact is from it (measured in docs/validation.md).
 //
 // Clock offsets: the clock offset is one number per session, so per-trial
 // offsets scattering beyond their SEs about their weighted mean (a Birge

@@ -391,9 +391,7 @@ void add_model6_prediction_intervals(const std::vector<TrialData>& trials, const
         // The column's common timing error (the shift that would align its
         // force with the training trials' measured one) moves its peak as it
         // moves its contact: a known part of the time to peak's variance,
-        // beside the parameters' (held-out peaks' times erred together, by
-        // 0.1-0.4 ms of one sign per session, where the shape error alone
-        // stated 0.03-0.09 ms).
+        // beside the parameters', shared by every trial (docs/validation.md).
         part.p.var[1] += res.timing_discrepancy_s * res.timing_discrepancy_s;
         const auto r = std::find_if(res.reach.begin(), res.reach.end(), [&](const Model6Reach& x) { return x.id == rep.id; });
         d.growth = r == res.reach.end() ? 1.0 : reach_growth(*r, res);

@@ -206,9 +206,8 @@ void replace_sync(diagnosis::DiagnosisResult& loop, const diagnosis::SyncDiagnos
 // calibration; rms_se_s: the RMS of the fitted contacts' SEs).
 void judge_model6_offsets(SessionState& state, const std::vector<trial::TrialResult>& results, double rms_se_s) {
   const Model6Stage& m6 = *state.model6;
-  // The verdict on the offsets Model 6's contacts give: the column carries
-  // the plate's delay behind the face, so no onset lag is allowed for.
-  // Each offset's SE counts Model 6's misfit of that trial as noise
+  // The column carries the plate's delay behind the face, so no onset lag
+  // is allowed for. Each offset's SE counts Model 6's misfit of that trial as noise
   // (fitting::predict_model6); short of the noise, their RMS widens the
   // verdict's systematic uncertainty.
   diagnosis::SyncStageOptions so;

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <numeric>
 
 #include "core/error.h"
 
@@ -152,9 +153,8 @@ std::vector<CameraLag> camera_lags(const std::vector<calibration::Camera>& camer
     std::vector<LagRows> by_lag;
     for (int l = -max_lag; l <= max_lag; ++l) {
       by_lag.push_back(lag_rows(pair, uv_px, n_points, n_cameras, c, points, l));
-      double sum = 0.0;
-      int n = 0;
-      for (std::size_t f = 0; f < by_lag.back().sum_sq.size(); ++f) sum += by_lag.back().sum_sq[f], n += by_lag.back().count[f];
+      const double sum = std::accumulate(by_lag.back().sum_sq.begin(), by_lag.back().sum_sq.end(), 0.0);
+      const int n = std::accumulate(by_lag.back().count.begin(), by_lag.back().count.end(), 0);
       lag.mean_sq_px.push_back(n >= kMinLagFrames ? sum / n : std::numeric_limits<double>::quiet_NaN());
     }
     for (int l = -max_lag; l <= max_lag; ++l) {

@@ -697,7 +697,8 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
     }
     impulse_checks(*force, o, res, reasons);
     if (std::isfinite(start_v)) {
-      const auto [from, to] = airborne_stretch_s(h, top, clock.frame(start_v), o.frame_rate_hz, o.trigger_frame, offset, o.gravity_m_s2);
+      const auto [from, to] =
+          airborne_stretch_s(h, top, clock.frame(start_v), o.frame_rate_hz, o.trigger_frame, offset, o.gravity_m_s2);
       if (std::isfinite(from)) {
         const forceplate::ChannelStep step = forceplate::find_channel_step(*force, from, to);
         if (step.found) reasons.insert(reasons.begin(), step.reason());
@@ -875,7 +876,9 @@ namespace {
 // One camera's rows change their lag part-way (CameraLag::changes_part_way).
 std::string camera_lag_change_reason(const reconstruction::CameraLag& lag, const TrialOptions& o) {
   const int d = lag.lag_after - lag.lag_before;
-  const auto row = [](int l) { return l == 0 ? std::string("row k") : fmt::format("row k {} {}", l < 0 ? '-' : '+', std::abs(l)); };
+  const auto row = [](int l) {
+    return l == 0 ? std::string("row k") : fmt::format("row k {} {}", l < 0 ? '-' : '+', std::abs(l));
+  };
   return fmt::format(
       "camera {} {} {} frame{} at its row {} ({:+.1f} ms on the video clock) that camera {} did not: its {} matches "
       "camera {}'s row k before that row and its {} from it on (the base markers reproject {:.2g} px RMS so, against "

@@ -148,9 +148,8 @@
 //   within what a drift at its own slopes allows; a channel that jumped (a
 //   charge amplifier's reset, a knocked cable: forceplate::
 //   find_channel_step) rejects the trial as its first reason, naming the
-//   channel, the step and its instant. On the shared validation sessions
-//   and clean generator sessions the largest excess is under 1 noise SD
-//   against the 8 that name a step.
+//   channel, the step and its instant (its margin on clean sessions:
+//   docs/faults.md).
 // - Reprojection and calibration: apply_calibration_gates() (below), given
 //   the calibration's own quality, rejects a trial whose markers' median
 //   reprojection residual is far above what the calibration achieved, and
