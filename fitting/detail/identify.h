@@ -41,7 +41,7 @@ namespace dropfit::fitting::internal {
 
 // The conjugate of u (see above), or an empty vector when the model has no
 // such pair (not Model 4, k2 or k3 not free, no positive conjugate) or it
-// lies within 20 % of u in every stiffness.
+// lies within 20 % of u in k2, k3, r2 and r3.
 Eigen::VectorXd conjugate_start(const ParamSpace& space, const Eigen::VectorXd& u);
 
 // Levenberg-Marquardt from the conjugate of the best optimum; the result
