@@ -107,6 +107,40 @@ void calibrate(SessionState& state) {
   state.reached = Stage::Calibration;
 }
 
+namespace {
+
+// The manifest's name of tracked point p, or its number.
+std::string point_label(const Manifest& man, int p) {
+  const auto& names = man.video.points;
+  return static_cast<std::size_t>(p) < names.size() ? names[static_cast<std::size_t>(p)]
+                                                   : fmt::format("point {}", p + 1);
+}
+
+// A marker digitised on the wrong point in one camera for a stretch
+// (reconstruction::MarkerSlip): its positions there are not where it was, in
+// 3-D, whichever camera slipped; they become gaps, and the note says so.
+void leave_slips_as_gaps(SessionState& state, const TrialRecording& trial,
+                         const std::vector<calibration::Camera>& cameras, reconstruction::Trajectories& markers) {
+  const double rate_hz = state.session.manifest.video.frame_rate_hz;
+  const int trigger = state.session.manifest.video.trigger_frame;
+  for (const auto& slip : reconstruction::marker_slips(cameras, trial.tracks.uv_px, trial.tracks.n_points())) {
+    const int n = slip.last_row - slip.first_row + 1;
+    markers.lab_m.block(slip.first_row, 3 * slip.point, n, 3).setConstant(std::numeric_limits<double>::quiet_NaN());
+    markers.residual_px.block(slip.first_row, slip.point, n, 1).setConstant(std::numeric_limits<double>::quiet_NaN());
+    markers.slips.push_back(slip);
+    const std::string name = point_label(state.session.manifest, slip.point);
+    state.notes.push_back(fmt::format(
+        "trial {}: {} is digitised off its point in one of the cameras in rows {}-{} ({:+.1f} to {:+.1f} ms on the "
+        "video clock): the rays through it step {:+.2f} px off each other there and back after (the distance from "
+        "the epipolar line, noise {:.2f} px; {:.0f} SEs), so a click or a tracker slipped; its positions in those "
+        "rows are left as gaps",
+        trial.spec.id, name, slip.first_row + 1, slip.last_row + 1, 1e3 * (slip.first_row - trigger) / rate_hz,
+        1e3 * (slip.last_row - trigger) / rate_hz, slip.step_px, slip.noise_px, std::abs(slip.z)));
+  }
+}
+
+}  // namespace
+
 void reconstruct(SessionState& state) {
   require(state, Stage::Calibration, "reconstruction");
   const auto cameras = cameras_of(state.calibration.after);
@@ -119,10 +153,12 @@ void reconstruct(SessionState& state) {
                          : reconstruction::reconstruct(cameras, trial.tracks.uv_px, trial.tracks.n_points());
     // Whether the cameras' rows are the same instants, on the impactor's
     // markers (the ones that move): trial::apply_calibration_gates judges it.
-    if (!trial.has_3d_markers() && cameras.size() >= 2)
+    if (!trial.has_3d_markers() && cameras.size() >= 2) {
       t.trajectories.camera_lags =
           reconstruction::camera_lags(cameras, trial.tracks.uv_px, trial.tracks.n_points(),
                                       trial_options(state.session.manifest, trial.spec.id).base_markers);
+      leave_slips_as_gaps(state, trial, cameras, t.trajectories);
+    }
   }
   state.reached = Stage::Reconstruction;
 }
@@ -156,6 +192,14 @@ void analyse_trials(SessionState& state, double max_tilt_deg, const std::functio
     trial::add_calibration_uncertainty(outcome.result, trial_quality);
     t.result = std::move(outcome.result);
     t.force = std::move(outcome.force);
+    if (!t.result.accepted && !t.trajectories.slips.empty()) {
+      std::string slipped;
+      for (const auto& slip : t.trajectories.slips)
+        slipped += fmt::format("{}{} in rows {}-{}", slipped.empty() ? "" : ", ", point_label(man, slip.point),
+                               slip.first_row + 1, slip.last_row + 1);
+      t.result.reject_reason = fmt::format("markers digitised off their point in one camera, left as gaps ({}); {}",
+                                           slipped, t.result.reject_reason);
+    }
     state.fit_data.push_back(fitting_trial(man, t.result));
   }
   // Trials that cannot be measurements of the drops they claim (one

@@ -1,5 +1,7 @@
 #include "reconstruction/reconstruction.h"
 
+#include <Eigen/Geometry>
+#include <Eigen/LU>
 #include <fmt/format.h>
 
 #include <algorithm>
@@ -8,6 +10,7 @@
 #include <numeric>
 
 #include "core/error.h"
+#include "core/median.h"
 
 namespace dropfit::reconstruction {
 
@@ -163,6 +166,191 @@ std::vector<CameraLag> camera_lags(const std::vector<calibration::Camera>& camer
     }
     split_lags(by_lag, lag);
     out.push_back(std::move(lag));
+  }
+  return out;
+}
+
+EpipolarSeries epipolar_distance(const calibration::Camera& cam0, const calibration::Camera& cam1,
+                                 const Eigen::MatrixXd& uv_px, int n_points, int n_cameras, int p) {
+  if (p < 0 || p >= n_points || uv_px.cols() < 2 * static_cast<Eigen::Index>(n_points) * n_cameras)
+    throw Error(fmt::format("epipolar_distance: point {} of {} in {} columns", p, n_points, uv_px.cols()));
+  const calibration::Matrix34d p0 = cam0.image_from_lab(), p1 = cam1.image_from_lab();
+  // F = [e1]x P1 P0^+, e1 camera 0's centre seen by camera 1 (Hartley &
+  // Zisserman 2003, sec. 9.2.2). Camera 0's pixel x0 (homogeneous, w = 1)
+  // gives the line F x0 in camera 1; the sign of x1's distance from it is
+  // the same for every row.
+  const Eigen::Vector3d centre = -p0.leftCols<3>().partialPivLu().solve(p0.col(3));
+  const Eigen::Vector3d e1 = p1 * centre.homogeneous();
+  Eigen::Matrix3d cross;
+  cross << 0.0, -e1.z(), e1.y(), e1.z(), 0.0, -e1.x(), -e1.y(), e1.x(), 0.0;
+  const Eigen::Matrix<double, 4, 3> p0_pinv = p0.transpose() * (p0 * p0.transpose()).inverse();
+  const Eigen::Matrix3d f = cross * p1 * p0_pinv;
+  const Eigen::Index c0 = 2 * static_cast<Eigen::Index>(p) * n_cameras, c1 = c0 + 2;
+  const auto rows = static_cast<std::size_t>(uv_px.rows());
+  constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+  EpipolarSeries out{std::vector<double>(rows, kNaN), std::vector<double>(rows, kNaN)};
+  std::vector<Eigen::Vector2d> x1(rows, Eigen::Vector2d::Constant(kNaN)), normal(rows, Eigen::Vector2d::Constant(kNaN));
+  for (std::size_t r = 0; r < rows; ++r) {
+    const auto row = static_cast<Eigen::Index>(r);
+    const Eigen::Vector2d x0 = cam0.undistort({uv_px(row, c0), uv_px(row, c0 + 1)});
+    x1[r] = cam1.undistort({uv_px(row, c1), uv_px(row, c1 + 1)});
+    if (!x0.allFinite() || !x1[r].allFinite()) continue;
+    const Eigen::Vector3d line = f * x0.homogeneous();
+    const double norm = line.head<2>().norm();
+    if (!(norm > 0.0)) continue;
+    normal[r] = line.head<2>() / norm;
+    out.distance_px[r] = line.dot(x1[r].homogeneous()) / norm;
+  }
+  for (std::size_t r = 1; r + 1 < rows; ++r)
+    if (normal[r].allFinite() && x1[r - 1].allFinite() && x1[r + 1].allFinite())
+      out.normal_velocity_px[r] = 0.5 * (x1[r + 1] - x1[r - 1]).dot(normal[r]);
+  return out;
+}
+
+namespace {
+
+// The least-squares line through the finite d[row] of rows [from, to),
+// evaluated at x: its value and its variance per unit noise variance
+// (1/n + (x - mean)^2 / Sxx). False with fewer than two thirds of the rows.
+bool line_at(const std::vector<double>& d, int from, int to, double x, double* value, double* var_unit) {
+  const int wanted = to - from;
+  from = std::max(from, 0);
+  to = std::min(to, static_cast<int>(d.size()));
+  double n = 0.0, sx = 0.0, sy = 0.0;
+  for (int r = from; r < to; ++r)
+    if (std::isfinite(d[static_cast<std::size_t>(r)])) n += 1.0, sx += r, sy += d[static_cast<std::size_t>(r)];
+  if (3.0 * n < 2.0 * wanted || n < 3.0) return false;
+  const double mx = sx / n, my = sy / n;
+  double sxx = 0.0, sxy = 0.0;
+  for (int r = from; r < to; ++r) {
+    const double y = d[static_cast<std::size_t>(r)];
+    if (std::isfinite(y)) sxx += (r - mx) * (r - mx), sxy += (r - mx) * (y - my);
+  }
+  if (!(sxx > 0.0)) return false;
+  *value = my + sxy / sxx * (x - mx);
+  *var_unit = 1.0 / n + (x - mx) * (x - mx) / sxx;
+  return true;
+}
+
+// The distance's frame-to-frame noise SD from its second differences (6
+// sigma^2 for white noise), by their median absolute value: a step adds two
+// large ones, which the median ignores.
+double second_difference_noise(const std::vector<double>& d) {
+  std::vector<double> s2;
+  for (std::size_t r = 1; r + 1 < d.size(); ++r)
+    if (std::isfinite(d[r - 1]) && std::isfinite(d[r]) && std::isfinite(d[r + 1]))
+      s2.push_back(std::abs(d[r + 1] - 2.0 * d[r] + d[r - 1]));
+  if (s2.size() < 20) return std::numeric_limits<double>::quiet_NaN();
+  return 1.4826 * median(std::move(s2)) / std::sqrt(6.0);
+}
+
+// The stretch's mean against the line before it (at its first row) and the
+// line after it (at its last): the smaller departure, in SEs, when both go
+// the same way (else 0).
+bool stretch_step(const std::vector<double>& d, int first, int last, double sigma, MarkerSlip* slip) {
+  double before = 0.0, vb = 0.0, after = 0.0, va = 0.0;
+  const int side = std::clamp(last - first + 1, kSlipSideRows, kMaxSlipSideRows);
+  if (!line_at(d, first - side, first, first - 0.5, &before, &vb) ||
+      !line_at(d, last + 1, last + 1 + side, last + 0.5, &after, &va))
+    return false;
+  double sum = 0.0;
+  int n = 0;
+  for (int r = first; r <= last; ++r)
+    if (std::isfinite(d[static_cast<std::size_t>(r)])) sum += d[static_cast<std::size_t>(r)], ++n;
+  if (n < kMinSlipRows) return false;
+  const double mean = sum / n;
+  const double zb = (mean - before) / (sigma * std::sqrt(1.0 / n + vb));
+  const double za = (mean - after) / (sigma * std::sqrt(1.0 / n + va));
+  slip->first_row = first;
+  slip->last_row = last;
+  slip->step_px = mean - 0.5 * (before + after);
+  slip->noise_px = sigma;
+  slip->z = std::signbit(zb) != std::signbit(za) ? 0.0 : (std::abs(zb) < std::abs(za) ? zb : za);
+  return true;
+}
+
+}  // namespace
+
+double subframe_offset(const std::vector<EpipolarSeries>& series) {
+  double sww = 0.0, swd = 0.0;
+  for (const EpipolarSeries& e : series) {
+    double n = 0.0, sw = 0.0, sd = 0.0;
+    for (std::size_t r = 0; r < e.distance_px.size(); ++r)
+      if (std::isfinite(e.distance_px[r]) && std::isfinite(e.normal_velocity_px[r]))
+        n += 1.0, sw += e.normal_velocity_px[r], sd += e.distance_px[r];
+    if (n < 3.0) continue;
+    const double mw = sw / n, md = sd / n;
+    for (std::size_t r = 0; r < e.distance_px.size(); ++r)
+      if (std::isfinite(e.distance_px[r]) && std::isfinite(e.normal_velocity_px[r])) {
+        const double wc = e.normal_velocity_px[r] - mw;
+        sww += wc * wc;
+        swd += wc * (e.distance_px[r] - md);
+      }
+  }
+  return sww > 0.0 ? swd / sww : 0.0;
+}
+
+std::vector<MarkerSlip> marker_slips(const std::vector<calibration::Camera>& cameras, const Eigen::MatrixXd& uv_px,
+                                     int n_points) {
+  const int n_cameras = static_cast<int>(cameras.size());
+  if (n_points < 0 || uv_px.cols() != 2 * static_cast<Eigen::Index>(n_points) * n_cameras)
+    throw Error(fmt::format("marker_slips: the 2-D tracks have {} columns; {} points in {} cameras need {}",
+                            uv_px.cols(), n_points, n_cameras, 2 * n_points * n_cameras));
+  std::vector<MarkerSlip> out;
+  if (n_cameras < 2) return out;
+  const int rows = static_cast<int>(uv_px.rows());
+  std::vector<EpipolarSeries> series;
+  for (int p = 0; p < n_points; ++p)
+    series.push_back(epipolar_distance(cameras[0], cameras[1], uv_px, n_points, n_cameras, p));
+  const double offset = subframe_offset(series);
+  for (int p = 0; p < n_points; ++p) {
+    // The distance less what the cameras' sub-frame offset moves it by.
+    std::vector<double> d = series[static_cast<std::size_t>(p)].distance_px;
+    const std::vector<double>& w = series[static_cast<std::size_t>(p)].normal_velocity_px;
+    for (std::size_t r = 0; r < d.size(); ++r) d[r] -= offset * (std::isfinite(w[r]) ? w[r] : 0.0);
+    const double sigma = second_difference_noise(d);
+    if (!(sigma > 0.0)) continue;
+    // The step at every row boundary (between row i - 1 and row i), in SEs.
+    std::vector<double> z(static_cast<std::size_t>(rows), 0.0);
+    for (int i = 1; i < rows; ++i) {
+      double l = 0.0, vl = 0.0, r = 0.0, vr = 0.0;
+      if (line_at(d, i - kSlipEdgeRows, i, i - 0.5, &l, &vl) && line_at(d, i, i + kSlipEdgeRows, i - 0.5, &r, &vr))
+        z[static_cast<std::size_t>(i)] = (r - l) / (sigma * std::sqrt(vl + vr));
+    }
+    // Edges: the largest |z| of each run beyond the threshold of one sign.
+    std::vector<int> edges;
+    for (int i = 1; i < rows; ++i) {
+      const double zi = z[static_cast<std::size_t>(i)];
+      if (!(std::abs(zi) >= kSlipEdgeZ)) continue;
+      if (!edges.empty() && i - edges.back() < kSlipEdgeRows &&
+          std::signbit(z[static_cast<std::size_t>(edges.back())]) == std::signbit(zi)) {
+        if (std::abs(zi) > std::abs(z[static_cast<std::size_t>(edges.back())])) edges.back() = i;
+        continue;
+      }
+      edges.push_back(i);
+    }
+    // A stretch starts at an edge and ends at a later edge of the other
+    // sign; of the ends that pass, the one whose stretch departs most.
+    for (std::size_t a = 0; a < edges.size(); ++a) {
+      const int start = edges[a];
+      const bool up = z[static_cast<std::size_t>(start)] > 0.0;
+      MarkerSlip best;
+      std::size_t best_b = 0;
+      for (std::size_t b = a + 1; b < edges.size() && edges[b] - start <= kMaxSlipRows; ++b) {
+        const int end = edges[b];
+        if ((z[static_cast<std::size_t>(end)] > 0.0) == up || end - start < kMinSlipRows) continue;
+        MarkerSlip slip;
+        slip.point = p;
+        if (stretch_step(d, start, end - 1, sigma, &slip) && std::abs(slip.z) >= kSlipMeanZ &&
+            (slip.step_px > 0.0) == up && std::abs(slip.z) > std::abs(best.z)) {
+          best = slip;
+          best_b = b;
+        }
+      }
+      if (best_b == 0) continue;
+      out.push_back(best);
+      a = best_b;
+    }
   }
   return out;
 }

@@ -66,6 +66,45 @@ struct CameraLag {
 constexpr int kMinLagFrames = 20;
 constexpr double kLagResidualFactor = 2.0;
 
+// A marker digitised on the wrong point in one camera for a stretch of rows
+// (a slip of the digitiser's click, an auto-tracker locked on a nearby
+// feature). Two cameras' rays through one point meet; a pixel moved off it
+// in one camera moves its ray off the other's, by the move's component
+// across the epipolar line (the component along the line only moves the
+// triangulated point). So the signed distance of camera 1's pixel from the
+// epipolar line of camera 0's (camera 1's pixels, lens distortion removed)
+// steps at the stretch's first row and back at its end. What else moves that
+// distance moves it without a jump: a lens term the calibration lacks (the
+// marker sweeping across the image), and cameras a fraction of a frame apart
+// (the offset times the marker's image velocity across the line: a hump
+// through the contact, which the test below would read as a shift; that
+// part, one offset for every point, is fitted and taken out first,
+// subframe_offset). At every row the two straight lines through the
+// kSlipEdgeRows rows before and after it are compared at the boundary; a
+// step beyond kSlipEdgeZ SEs there (noise from the second differences,
+// robust to the steps) starts a stretch, one of the other sign within
+// kMaxSlipRows rows ends it. The stretch is a slip when it is at least
+// kMinSlipRows long and its mean departs from the line through the rows
+// before it and from the one through those after it (as many rows as the
+// stretch, from kSlipSideRows to kMaxSlipSideRows), each by more than
+// kSlipMeanZ SEs and the same way. Which of the two cameras slipped the distance
+// does not tell: the point's positions over the stretch are untrustworthy in
+// 3-D either way.
+struct MarkerSlip {
+  int point = 0;
+  int first_row = 0, last_row = 0;  // the stretch, inclusive
+  double step_px = 0.0;             // its mean epipolar distance from the lines beside it
+  double noise_px = 0.0;            // the distance's frame-to-frame noise (SD)
+  double z = 0.0;                   // the smaller departure, in SEs
+};
+constexpr int kSlipEdgeRows = 12;
+constexpr int kSlipSideRows = 24;
+constexpr int kMaxSlipSideRows = 60;
+constexpr int kMinSlipRows = 8;
+constexpr int kMaxSlipRows = 400;
+constexpr double kSlipEdgeZ = 3.0;
+constexpr double kSlipMeanZ = 6.0;
+
 struct Trajectories {
   // n_frames x (3 * n_points): x, y, z of point p in columns 3p..3p+2; NaN in gaps.
   Eigen::MatrixXd lab_m;
@@ -74,10 +113,37 @@ struct Trajectories {
   // camera_lags() of the impactor's markers, set by the pipeline (empty for
   // markers that did not come through these cameras).
   std::vector<CameraLag> camera_lags;
+  // marker_slips() of the trial, set by the pipeline, which leaves their
+  // rows as gaps in lab_m and residual_px.
+  std::vector<MarkerSlip> slips;
   int n_frames() const { return static_cast<int>(residual_px.rows()); }
   int n_points() const { return static_cast<int>(residual_px.cols()); }
   Eigen::Vector3d point(int frame, int p) const { return lab_m.row(frame).segment<3>(3 * p).transpose(); }
 };
+
+// Camera 1's signed distance from camera 0's epipolar line, per row (NaN
+// where either camera does not see point p), in camera 1's pixels; and
+// camera 1's pixel velocity across that line (pixels per row, central
+// differences; NaN at the ends and beside a gap). Camera 1 seeing the
+// instants a fraction s of a row later than camera 0 adds s times that
+// velocity to the distance.
+struct EpipolarSeries {
+  std::vector<double> distance_px;
+  std::vector<double> normal_velocity_px;
+};
+EpipolarSeries epipolar_distance(const calibration::Camera& cam0, const calibration::Camera& cam1,
+                                 const Eigen::MatrixXd& uv_px, int n_points, int n_cameras, int p);
+
+// The cameras' sub-frame offset s (rows) common to the points: the least
+// squares of distance = a_p + s velocity over every point's rows (a_p each
+// point's own mean).
+double subframe_offset(const std::vector<EpipolarSeries>& series);
+
+// The slips (above) of every point seen by cameras 0 and 1, in point then
+// row order; none with fewer than two cameras. Throws dropfit::Error when
+// the column count does not match.
+std::vector<MarkerSlip> marker_slips(const std::vector<calibration::Camera>& cameras, const Eigen::MatrixXd& uv_px,
+                                     int n_points);
 
 // uv_px in the DLTdv layout of core/session.h (MarkerTracks2D::uv_px):
 // n_frames x (2 * n_points * cameras.size()), u of point p in camera c in

@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <random>
 #include <limits>
+#include <numbers>
 #include <vector>
 
 #include "core/error.h"
@@ -220,6 +221,80 @@ TEST(Reconstruct, MatchesTriangulateWithNoise) {
       EXPECT_EQ(out.residual_px(f, p), t.residual_px);
       EXPECT_LT((t.lab_m - path[f][p]).norm(), 0.002);
     }
+}
+
+// A drop seen at 1 kHz: a marker falling at 4 m/s from 0.7 m, stopped over
+// 40 ms from row 100 (half a sine of deceleration), then at rest; a second
+// marker at rest. Its height at row f + lag (lag in rows, fractional).
+Eigen::Vector3d dropping(double f) {
+  const double t = 1e-3 * f, v0 = 4.0, stop = 0.1, span = 0.04;
+  if (t < stop) return {0.05, 0.0, 0.7 - v0 * t};
+  const double u = std::min(t - stop, span);
+  // Velocity v0 (1 + cos(pi u / span)) / 2 over the span: its integral.
+  const double fall = 0.5 * v0 * (u + span / std::numbers::pi * std::sin(std::numbers::pi * u / span));
+  return {0.05, 0.0, 0.7 - v0 * stop - fall};
+}
+
+// Camera 1's pixels lag_rows later than camera 0's.
+Eigen::MatrixXd drop_tracks(double noise_px, double lag_rows, unsigned seed) {
+  const auto truth = testsupport::two_cameras();
+  testsupport::PixelNoise noise(noise_px, seed);
+  const int rows = 240;
+  Eigen::MatrixXd uv(rows, 8);
+  for (int f = 0; f < rows; ++f) {
+    const Eigen::Vector3d still(-0.2, 0.1, 0.2);
+    uv.row(f).segment<2>(0) = (truth[0].project(dropping(f)) + noise()).transpose();
+    uv.row(f).segment<2>(2) = (truth[1].project(dropping(f + lag_rows)) + noise()).transpose();
+    uv.row(f).segment<2>(4) = (truth[0].project(still) + noise()).transpose();
+    uv.row(f).segment<2>(6) = (truth[1].project(still) + noise()).transpose();
+  }
+  return uv;
+}
+
+// Rays through one point meet: the distance from the epipolar line is 0;
+// a pixel moved in camera 1 moves it by the move's component across the
+// line, the same size either way.
+TEST(MarkerSlips, TheEpipolarDistanceIsTheMoveAcrossTheLine) {
+  const auto cameras = true_cameras();
+  Eigen::MatrixXd uv = drop_tracks(0.0, 0.0, 1);
+  const auto clean = reconstruction::epipolar_distance(cameras[0], cameras[1], uv, 2, 2, 0);
+  for (int f = 0; f < 240; ++f) EXPECT_NEAR(clean.distance_px[static_cast<std::size_t>(f)], 0.0, 1e-6) << f;
+  uv(50, 2) += 3.0;
+  const double plus = reconstruction::epipolar_distance(cameras[0], cameras[1], uv, 2, 2, 0).distance_px[50];
+  uv(50, 2) -= 6.0;
+  const double minus = reconstruction::epipolar_distance(cameras[0], cameras[1], uv, 2, 2, 0).distance_px[50];
+  EXPECT_NEAR(plus, -minus, 1e-6);
+  EXPECT_GT(std::abs(plus), 0.5);  // the lines are not along camera 1's x axis
+  EXPECT_LE(std::abs(plus), 3.0 + 1e-9);
+  EXPECT_THROW(reconstruction::epipolar_distance(cameras[0], cameras[1], uv, 2, 2, 2), Error);
+}
+
+// Camera 1 a third of a row late: the fitted offset is that third within
+// 0.03 rows at 0.2 px noise.
+TEST(MarkerSlips, TheSubframeOffsetIsRecovered) {
+  const auto cameras = true_cameras();
+  const Eigen::MatrixXd uv = drop_tracks(0.2, 1.0 / 3.0, 2);
+  std::vector<reconstruction::EpipolarSeries> series;
+  for (int p = 0; p < 2; ++p) series.push_back(reconstruction::epipolar_distance(cameras[0], cameras[1], uv, 2, 2, p));
+  EXPECT_NEAR(reconstruction::subframe_offset(series), 1.0 / 3.0, 0.03);
+}
+
+// Point 0 clicked 3 px off in camera 0 over rows 90-125 (through the
+// stop), with camera 1 half a row late: one slip, those rows, point 0; the
+// still point none. Without the slip: none.
+TEST(MarkerSlips, AStretchClickedOffIsFoundToTheRow) {
+  const auto cameras = true_cameras();
+  Eigen::MatrixXd uv = drop_tracks(0.2, 0.5, 3);
+  EXPECT_TRUE(reconstruction::marker_slips(cameras, uv, 2).empty());
+  for (int f = 90; f <= 125; ++f) uv(f, 0) += 3.0, uv(f, 1) += 3.0;
+  const auto slips = reconstruction::marker_slips(cameras, uv, 2);
+  ASSERT_EQ(slips.size(), 1u);
+  EXPECT_EQ(slips[0].point, 0);
+  EXPECT_NEAR(slips[0].first_row, 90, 1);
+  EXPECT_NEAR(slips[0].last_row, 125, 1);
+  EXPECT_GE(std::abs(slips[0].z), reconstruction::kSlipMeanZ);
+  EXPECT_THROW(reconstruction::marker_slips(cameras, Eigen::MatrixXd::Zero(5, 6), 2), Error);
+  EXPECT_TRUE(reconstruction::marker_slips({cameras[0]}, Eigen::MatrixXd::Zero(5, 4), 2).empty());
 }
 
 TEST(Reconstruct, WrongColumnCountThrows) {

@@ -52,7 +52,7 @@ TEST(ReportDlt, BottomLeftCoefficientsGiveHeightMinusV) {
   for (int c = 0; c < 2; ++c) {
     const calibration::Camera camera = pinhole_camera(c);
     const calibration::Dlt11 bl = report::dlt_bottom_left(camera.dlt, height_px);
-    for (const Eigen::Vector3d X : {Eigen::Vector3d(0.1, -0.2, 0.3), Eigen::Vector3d(-0.4, 0.25, 0.0),
+    for (const Eigen::Vector3d& X : {Eigen::Vector3d(0.1, -0.2, 0.3), Eigen::Vector3d(-0.4, 0.25, 0.0),
                                     Eigen::Vector3d(0.45, 0.3, 0.8)}) {
       const Eigen::Vector2d top = dlt_project(camera.dlt, X);
       const Eigen::Vector2d bottom = dlt_project(bl, X);
