@@ -116,14 +116,38 @@ std::string point_label(const Manifest& man, int p) {
                                                    : fmt::format("point {}", p + 1);
 }
 
+// Cameras a fraction of a frame apart (reconstruction::SubframeOffset):
+// camera 2's pixels are moved to camera 1's instants, and the note says by
+// how much. Not where a whole-frame lag is found (the trial is rejected for
+// it, trial::apply_calibration_gates), nor with more than two cameras.
+void align_subframe(SessionState& state, const TrialRecording& trial,
+                    const std::vector<calibration::Camera>& cameras,
+                    const std::vector<reconstruction::CameraLag>& lags, Eigen::MatrixXd& uv_px) {
+  if (cameras.size() != 2) return;
+  for (const auto& lag : lags)
+    if (lag.desynchronised() || lag.changes_part_way()) return;
+  const int n_points = trial.tracks.n_points();
+  const reconstruction::SubframeOffset offset = reconstruction::subframe_offset(cameras, uv_px, n_points);
+  if (!offset.significant()) return;
+  uv_px = reconstruction::resample_camera(uv_px, n_points, 2, 1, offset.rows);
+  const reconstruction::SubframeOffset after = reconstruction::subframe_offset(cameras, uv_px, n_points);
+  state.notes.push_back(fmt::format(
+      "trial {}: camera {} shows each instant {:.2f} +- {:.2f} frames {} camera {} (the cameras are not genlocked: the "
+      "rays through the moving markers miss by that fraction of their image velocity, {:.2f} px RMS from the epipolar "
+      "lines, {:.2f} px without it); its pixels are interpolated to camera {}'s instants ({:.2f} px RMS after)",
+      trial.spec.id, cameras[1].name, std::abs(offset.rows), offset.se_rows, offset.rows > 0.0 ? "after" : "before",
+      cameras[0].name, offset.rms_before_px, offset.rms_after_px, cameras[0].name, after.rms_before_px));
+}
+
 // A marker digitised on the wrong point in one camera for a stretch
 // (reconstruction::MarkerSlip): its positions there are not where it was, in
 // 3-D, whichever camera slipped; they become gaps, and the note says so.
 void leave_slips_as_gaps(SessionState& state, const TrialRecording& trial,
-                         const std::vector<calibration::Camera>& cameras, reconstruction::Trajectories& markers) {
+                         const std::vector<calibration::Camera>& cameras, const Eigen::MatrixXd& uv_px,
+                         reconstruction::Trajectories& markers) {
   const double rate_hz = state.session.manifest.video.frame_rate_hz;
   const int trigger = state.session.manifest.video.trigger_frame;
-  for (const auto& slip : reconstruction::marker_slips(cameras, trial.tracks.uv_px, trial.tracks.n_points())) {
+  for (const auto& slip : reconstruction::marker_slips(cameras, uv_px, trial.tracks.n_points())) {
     const int n = slip.last_row - slip.first_row + 1;
     markers.lab_m.block(slip.first_row, 3 * slip.point, n, 3).setConstant(std::numeric_limits<double>::quiet_NaN());
     markers.residual_px.block(slip.first_row, slip.point, n, 1).setConstant(std::numeric_limits<double>::quiet_NaN());
@@ -148,17 +172,24 @@ void reconstruct(SessionState& state) {
   for (const auto& trial : state.session.trials) {
     diagnosis::TrialState& t = state.trials.emplace_back();
     t.result.id = trial.spec.id;
-    t.trajectories = trial.has_3d_markers()
-                         ? markers_as_trajectories(trial.markers_xyz_m)
-                         : reconstruction::reconstruct(cameras, trial.tracks.uv_px, trial.tracks.n_points());
-    // Whether the cameras' rows are the same instants, on the impactor's
-    // markers (the ones that move): trial::apply_calibration_gates judges it.
-    if (!trial.has_3d_markers() && cameras.size() >= 2) {
-      t.trajectories.camera_lags =
-          reconstruction::camera_lags(cameras, trial.tracks.uv_px, trial.tracks.n_points(),
-                                      trial_options(state.session.manifest, trial.spec.id).base_markers);
-      leave_slips_as_gaps(state, trial, cameras, t.trajectories);
+    if (trial.has_3d_markers()) {
+      t.trajectories = markers_as_trajectories(trial.markers_xyz_m);
+      continue;
     }
+    const int n_points = trial.tracks.n_points();
+    // Whether the cameras' rows are the same instants, on the impactor's
+    // markers (the ones that move): trial::apply_calibration_gates judges a
+    // whole-frame lag; a fraction of a frame is taken out here.
+    std::vector<reconstruction::CameraLag> lags;
+    Eigen::MatrixXd uv = trial.tracks.uv_px;
+    if (cameras.size() >= 2) {
+      lags = reconstruction::camera_lags(cameras, uv, n_points,
+                                         trial_options(state.session.manifest, trial.spec.id).base_markers);
+      align_subframe(state, trial, cameras, lags, uv);
+    }
+    t.trajectories = reconstruction::reconstruct(cameras, uv, n_points);
+    t.trajectories.camera_lags = std::move(lags);
+    if (cameras.size() >= 2) leave_slips_as_gaps(state, trial, cameras, uv, t.trajectories);
   }
   state.reached = Stage::Reconstruction;
 }

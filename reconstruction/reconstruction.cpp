@@ -8,6 +8,7 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <utility>
 
 #include "core/error.h"
 #include "core/median.h"
@@ -271,23 +272,70 @@ bool stretch_step(const std::vector<double>& d, int first, int last, double sigm
 
 }  // namespace
 
-double subframe_offset(const std::vector<EpipolarSeries>& series) {
-  double sww = 0.0, swd = 0.0;
+bool SubframeOffset::significant() const {
+  return std::abs(rows) >= kMinSubframeRows && std::abs(rows) >= kSubframeZ * se_rows;
+}
+
+SubframeOffset subframe_offset(const std::vector<EpipolarSeries>& series) {
+  // Each point's rows where both the distance and the velocity are known,
+  // centred on the point's own means.
+  std::vector<std::pair<double, double>> centred;  // (velocity, distance)
   for (const EpipolarSeries& e : series) {
     double n = 0.0, sw = 0.0, sd = 0.0;
     for (std::size_t r = 0; r < e.distance_px.size(); ++r)
       if (std::isfinite(e.distance_px[r]) && std::isfinite(e.normal_velocity_px[r]))
         n += 1.0, sw += e.normal_velocity_px[r], sd += e.distance_px[r];
     if (n < 3.0) continue;
-    const double mw = sw / n, md = sd / n;
     for (std::size_t r = 0; r < e.distance_px.size(); ++r)
-      if (std::isfinite(e.distance_px[r]) && std::isfinite(e.normal_velocity_px[r])) {
-        const double wc = e.normal_velocity_px[r] - mw;
-        sww += wc * wc;
-        swd += wc * (e.distance_px[r] - md);
-      }
+      if (std::isfinite(e.distance_px[r]) && std::isfinite(e.normal_velocity_px[r]))
+        centred.emplace_back(e.normal_velocity_px[r] - sw / n, e.distance_px[r] - sd / n);
   }
-  return sww > 0.0 ? swd / sww : 0.0;
+  SubframeOffset out;
+  double sww = 0.0, swd = 0.0, sdd = 0.0;
+  for (const auto& [w, d] : centred) sww += w * w, swd += w * d, sdd += d * d;
+  const auto n = static_cast<double>(centred.size());
+  if (!(sww > 0.0) || n < 3.0) return out;
+  out.rows = swd / sww;
+  const double rss = std::max(sdd - out.rows * swd, 0.0);
+  out.se_rows = std::sqrt(rss / (n - 1.0) / sww);
+  out.rms_before_px = std::sqrt(sdd / n);
+  out.rms_after_px = std::sqrt(rss / n);
+  return out;
+}
+
+SubframeOffset subframe_offset(const std::vector<calibration::Camera>& cameras, const Eigen::MatrixXd& uv_px,
+                               int n_points) {
+  const int n_cameras = static_cast<int>(cameras.size());
+  if (n_cameras < 2) return {};
+  std::vector<EpipolarSeries> series;
+  for (int p = 0; p < n_points; ++p)
+    series.push_back(epipolar_distance(cameras[0], cameras[1], uv_px, n_points, n_cameras, p));
+  return subframe_offset(series);
+}
+
+Eigen::MatrixXd resample_camera(const Eigen::MatrixXd& uv_px, int n_points, int n_cameras, int camera,
+                                double late_rows) {
+  if (n_points < 0 || camera < 0 || camera >= n_cameras ||
+      uv_px.cols() != 2 * static_cast<Eigen::Index>(n_points) * n_cameras)
+    throw Error(fmt::format("resample_camera: camera {} of {} in {} columns for {} points", camera, n_cameras,
+                            uv_px.cols(), n_points));
+  Eigen::MatrixXd out = uv_px;
+  const Eigen::Index rows = uv_px.rows();
+  for (int p = 0; p < n_points; ++p) {
+    const Eigen::Index c = 2 * (static_cast<Eigen::Index>(p) * n_cameras + camera);
+    for (Eigen::Index k = 0; k < rows; ++k) {
+      const double x = static_cast<double>(k) - late_rows;
+      const auto i0 = static_cast<Eigen::Index>(std::floor(x));
+      const double f = x - static_cast<double>(i0);
+      Eigen::Vector2d v = Eigen::Vector2d::Constant(std::numeric_limits<double>::quiet_NaN());
+      if (i0 >= 0 && i0 < rows && f == 0.0)
+        v = uv_px.block<1, 2>(i0, c).transpose();
+      else if (i0 >= 0 && i0 + 1 < rows)
+        v = (1.0 - f) * uv_px.block<1, 2>(i0, c).transpose() + f * uv_px.block<1, 2>(i0 + 1, c).transpose();
+      out.block<1, 2>(k, c) = v.transpose();
+    }
+  }
+  return out;
 }
 
 std::vector<MarkerSlip> marker_slips(const std::vector<calibration::Camera>& cameras, const Eigen::MatrixXd& uv_px,
@@ -302,7 +350,7 @@ std::vector<MarkerSlip> marker_slips(const std::vector<calibration::Camera>& cam
   std::vector<EpipolarSeries> series;
   for (int p = 0; p < n_points; ++p)
     series.push_back(epipolar_distance(cameras[0], cameras[1], uv_px, n_points, n_cameras, p));
-  const double offset = subframe_offset(series);
+  const double offset = subframe_offset(series).rows;
   for (int p = 0; p < n_points; ++p) {
     // The distance less what the cameras' sub-frame offset moves it by.
     std::vector<double> d = series[static_cast<std::size_t>(p)].distance_px;

@@ -276,7 +276,28 @@ TEST(MarkerSlips, TheSubframeOffsetIsRecovered) {
   const Eigen::MatrixXd uv = drop_tracks(0.2, 1.0 / 3.0, 2);
   std::vector<reconstruction::EpipolarSeries> series;
   for (int p = 0; p < 2; ++p) series.push_back(reconstruction::epipolar_distance(cameras[0], cameras[1], uv, 2, 2, p));
-  EXPECT_NEAR(reconstruction::subframe_offset(series), 1.0 / 3.0, 0.03);
+  EXPECT_NEAR(reconstruction::subframe_offset(series).rows, 1.0 / 3.0, 0.03);
+}
+
+// Camera 1's pixels moved to camera 0's instants: the offset goes (within
+// 0.02 rows at 0.2 px noise), and a row whose neighbour is missing becomes
+// a gap.
+TEST(MarkerSlips, ResamplingTakesTheSubframeOffsetOut) {
+  const auto cameras = true_cameras();
+  Eigen::MatrixXd uv = drop_tracks(0.2, 0.4, 4);
+  uv.block<1, 2>(60, 2).setConstant(kNaN);
+  const auto before = reconstruction::subframe_offset(cameras, uv, 2);
+  ASSERT_TRUE(before.significant());
+  EXPECT_NEAR(before.rows, 0.4, 0.03);
+  const Eigen::MatrixXd aligned = reconstruction::resample_camera(uv, 2, 2, 1, before.rows);
+  const auto after = reconstruction::subframe_offset(cameras, aligned, 2);
+  EXPECT_NEAR(after.rows, 0.0, 0.02);
+  EXPECT_FALSE(after.significant());
+  // Row 60 is missing: rows 60 and 61 (which read it) are gaps; camera 0 untouched.
+  EXPECT_TRUE(std::isnan(aligned(60, 2)) && std::isnan(aligned(61, 2)));
+  EXPECT_TRUE(std::isfinite(aligned(62, 2)));
+  EXPECT_EQ(aligned.col(0), uv.col(0));
+  EXPECT_THROW(reconstruction::resample_camera(uv, 2, 2, 2, 0.4), Error);
 }
 
 // Point 0 clicked 3 px off in camera 0 over rows 90-125 (through the
