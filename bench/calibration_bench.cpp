@@ -43,8 +43,13 @@ BENCHMARK(BM_CalibrateTwoCameras)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)
 
 // A 5 s trial at 1000 Hz: 6 markers falling and swaying, 2 cameras, 0.25 px
 // noise, 2 % of the samples missing in one camera.
-void BM_ReconstructTrial(benchmark::State& state) {
-  const bool distorted = state.range(1) > 0;
+struct TrialScene {
+  std::vector<calibration::Camera> cameras;
+  Eigen::MatrixXd uv;
+  int n_points = 6;
+};
+
+TrialScene trial_scene(bool distorted) {
   const auto truth = testsupport::two_cameras(distorted ? -0.2 : 0.0);
   std::vector<calibration::Camera> cameras;
   for (const auto& c : truth) cameras.push_back(c.as_camera());
@@ -65,11 +70,31 @@ void BM_ReconstructTrial(benchmark::State& state) {
       }
     }
   }
+  return {cameras, uv, n_points};
+}
+
+void BM_ReconstructTrial(benchmark::State& state) {
+  const TrialScene scene = trial_scene(state.range(1) > 0);
   const bool refine = state.range(0) > 0;
-  for (auto _ : state) benchmark::DoNotOptimize(reconstruction::reconstruct(cameras, uv, n_points, refine));
-  state.SetItemsProcessed(state.iterations() * n_frames * n_points);
+  for (auto _ : state)
+    benchmark::DoNotOptimize(reconstruction::reconstruct(scene.cameras, scene.uv, scene.n_points, refine));
+  state.SetItemsProcessed(state.iterations() * scene.uv.rows() * scene.n_points);
 }
 // {refine, distortion}
 BENCHMARK(BM_ReconstructTrial)->Args({0, 0})->Args({1, 0})->Args({1, 1})->Unit(benchmark::kMillisecond);
+
+// The same trial's checks of the rays: the cameras' sub-frame offset and
+// the markers digitised off their point (every point's epipolar distance,
+// the edge scan and its stretches).
+void BM_RayChecksTrial(benchmark::State& state) {
+  const TrialScene scene = trial_scene(state.range(0) > 0);
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(reconstruction::subframe_offset(scene.cameras, scene.uv, scene.n_points));
+    benchmark::DoNotOptimize(reconstruction::marker_slips(scene.cameras, scene.uv, scene.n_points));
+  }
+  state.SetItemsProcessed(state.iterations() * scene.uv.rows() * scene.n_points);
+}
+// {distortion}
+BENCHMARK(BM_RayChecksTrial)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
 }  // namespace
