@@ -370,8 +370,7 @@ Eigen::VectorXd conjugate_start(const ParamSpace& space, const Eigen::VectorXd& 
   const Eigen::VectorXd uc = space.from_mat(c);
   // The same basin only when the dampings map near themselves too: a
   // conjugate whose springs lie within 20 % may still exchange most of the
-  // layers' damping (r2 and r3 a factor of two or three apart), and that is
-  // another optimum.
+  // layers' damping between r2 and r3, and that is another optimum.
   double moved = 0.0;
   for (const char* name : {"k2_n_m", "k3_n_m", "r2_n_s_m", "r3_n_s_m"})
     if (const int j = index_of(space, name); j >= 0) moved = std::max(moved, std::abs(uc[j] - u[j]));

@@ -117,20 +117,23 @@ std::string point_label(const Manifest& man, int p) {
 }
 
 // Cameras a fraction of a frame apart (reconstruction::SubframeOffset):
-// camera 2's pixels are moved to camera 1's instants, and the note says by
-// how much. Not where a whole-frame lag is found (the trial is rejected for
-// it, trial::apply_calibration_gates), nor with more than two cameras.
+// camera 2's pixels are moved to camera 1's instants, their epipolar series
+// with them, and the note says by how much. Not where a whole-frame lag is
+// found (the trial is rejected for it, trial::apply_calibration_gates), nor
+// with more than two cameras.
 void align_subframe(SessionState& state, const TrialRecording& trial,
                     const std::vector<calibration::Camera>& cameras,
-                    const std::vector<reconstruction::CameraLag>& lags, Eigen::MatrixXd& uv_px) {
+                    const std::vector<reconstruction::CameraLag>& lags, Eigen::MatrixXd& uv_px,
+                    std::vector<reconstruction::EpipolarSeries>& series) {
   if (cameras.size() != 2) return;
   for (const auto& lag : lags)
     if (lag.desynchronised() || lag.changes_part_way()) return;
   const int n_points = trial.tracks.n_points();
-  const reconstruction::SubframeOffset offset = reconstruction::subframe_offset(cameras, uv_px, n_points);
+  const reconstruction::SubframeOffset offset = reconstruction::subframe_offset(series);
   if (!offset.significant()) return;
   uv_px = reconstruction::resample_camera(uv_px, n_points, 2, 1, offset.rows);
-  const reconstruction::SubframeOffset after = reconstruction::subframe_offset(cameras, uv_px, n_points);
+  series = reconstruction::epipolar_series(cameras, uv_px, n_points);
+  const reconstruction::SubframeOffset after = reconstruction::subframe_offset(series);
   state.notes.push_back(fmt::format(
       "trial {}: camera {} shows each instant {:.2f} +- {:.2f} frames {} camera {} (the cameras are not genlocked: the "
       "rays through the moving markers miss by that fraction of their image velocity, {:.2f} px RMS from the epipolar "
@@ -143,11 +146,11 @@ void align_subframe(SessionState& state, const TrialRecording& trial,
 // (reconstruction::MarkerSlip): its positions there are not where it was, in
 // 3-D, whichever camera slipped; they become gaps, and the note says so.
 void leave_slips_as_gaps(SessionState& state, const TrialRecording& trial,
-                         const std::vector<calibration::Camera>& cameras, const Eigen::MatrixXd& uv_px,
+                         const std::vector<reconstruction::EpipolarSeries>& series,
                          reconstruction::Trajectories& markers) {
   const double rate_hz = state.session.manifest.video.frame_rate_hz;
   const int trigger = state.session.manifest.video.trigger_frame;
-  for (const auto& slip : reconstruction::marker_slips(cameras, uv_px, trial.tracks.n_points())) {
+  for (const auto& slip : reconstruction::marker_slips(series)) {
     const int n = slip.last_row - slip.first_row + 1;
     markers.lab_m.block(slip.first_row, 3 * slip.point, n, 3).setConstant(std::numeric_limits<double>::quiet_NaN());
     markers.residual_px.block(slip.first_row, slip.point, n, 1).setConstant(std::numeric_limits<double>::quiet_NaN());
@@ -182,14 +185,16 @@ void reconstruct(SessionState& state) {
     // whole-frame lag; a fraction of a frame is taken out here.
     std::vector<reconstruction::CameraLag> lags;
     Eigen::MatrixXd uv = trial.tracks.uv_px;
+    std::vector<reconstruction::EpipolarSeries> series;  // the rays' checks, cameras 1 and 2
     if (cameras.size() >= 2) {
       lags = reconstruction::camera_lags(cameras, uv, n_points,
                                          trial_options(state.session.manifest, trial.spec.id).base_markers);
-      align_subframe(state, trial, cameras, lags, uv);
+      series = reconstruction::epipolar_series(cameras, uv, n_points);
+      align_subframe(state, trial, cameras, lags, uv, series);
     }
     t.trajectories = reconstruction::reconstruct(cameras, uv, n_points);
     t.trajectories.camera_lags = std::move(lags);
-    if (cameras.size() >= 2) leave_slips_as_gaps(state, trial, cameras, uv, t.trajectories);
+    leave_slips_as_gaps(state, trial, series, t.trajectories);
   }
   state.reached = Stage::Reconstruction;
 }

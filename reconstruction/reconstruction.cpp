@@ -303,14 +303,22 @@ SubframeOffset subframe_offset(const std::vector<EpipolarSeries>& series) {
   return out;
 }
 
-SubframeOffset subframe_offset(const std::vector<calibration::Camera>& cameras, const Eigen::MatrixXd& uv_px,
-                               int n_points) {
+std::vector<EpipolarSeries> epipolar_series(const std::vector<calibration::Camera>& cameras,
+                                            const Eigen::MatrixXd& uv_px, int n_points) {
   const int n_cameras = static_cast<int>(cameras.size());
-  if (n_cameras < 2) return {};
+  if (n_points < 0 || uv_px.cols() != 2 * static_cast<Eigen::Index>(n_points) * n_cameras)
+    throw Error(fmt::format("epipolar_series: the 2-D tracks have {} columns; {} points in {} cameras need {}",
+                            uv_px.cols(), n_points, n_cameras, 2 * n_points * n_cameras));
   std::vector<EpipolarSeries> series;
+  if (n_cameras < 2) return series;
   for (int p = 0; p < n_points; ++p)
     series.push_back(epipolar_distance(cameras[0], cameras[1], uv_px, n_points, n_cameras, p));
-  return subframe_offset(series);
+  return series;
+}
+
+SubframeOffset subframe_offset(const std::vector<calibration::Camera>& cameras, const Eigen::MatrixXd& uv_px,
+                               int n_points) {
+  return subframe_offset(epipolar_series(cameras, uv_px, n_points));
 }
 
 Eigen::MatrixXd resample_camera(const Eigen::MatrixXd& uv_px, int n_points, int n_cameras, int camera,
@@ -340,21 +348,17 @@ Eigen::MatrixXd resample_camera(const Eigen::MatrixXd& uv_px, int n_points, int 
 
 std::vector<MarkerSlip> marker_slips(const std::vector<calibration::Camera>& cameras, const Eigen::MatrixXd& uv_px,
                                      int n_points) {
-  const int n_cameras = static_cast<int>(cameras.size());
-  if (n_points < 0 || uv_px.cols() != 2 * static_cast<Eigen::Index>(n_points) * n_cameras)
-    throw Error(fmt::format("marker_slips: the 2-D tracks have {} columns; {} points in {} cameras need {}",
-                            uv_px.cols(), n_points, n_cameras, 2 * n_points * n_cameras));
+  return marker_slips(epipolar_series(cameras, uv_px, n_points));
+}
+
+std::vector<MarkerSlip> marker_slips(const std::vector<EpipolarSeries>& series) {
   std::vector<MarkerSlip> out;
-  if (n_cameras < 2) return out;
-  const int rows = static_cast<int>(uv_px.rows());
-  std::vector<EpipolarSeries> series;
-  for (int p = 0; p < n_points; ++p)
-    series.push_back(epipolar_distance(cameras[0], cameras[1], uv_px, n_points, n_cameras, p));
   const double offset = subframe_offset(series).rows;
-  for (int p = 0; p < n_points; ++p) {
+  for (int p = 0; p < static_cast<int>(series.size()); ++p) {
     // The distance less what the cameras' sub-frame offset moves it by.
     std::vector<double> d = series[static_cast<std::size_t>(p)].distance_px;
     const std::vector<double>& w = series[static_cast<std::size_t>(p)].normal_velocity_px;
+    const int rows = static_cast<int>(d.size());
     for (std::size_t r = 0; r < d.size(); ++r) d[r] -= offset * (std::isfinite(w[r]) ? w[r] : 0.0);
     const double sigma = second_difference_noise(d);
     if (!(sigma > 0.0)) continue;

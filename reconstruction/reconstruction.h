@@ -154,8 +154,13 @@ struct SubframeOffset {
 constexpr double kMinSubframeRows = 0.1;
 constexpr double kSubframeZ = 5.0;
 SubframeOffset subframe_offset(const std::vector<EpipolarSeries>& series);
-// The same from the tracks (cameras 0 and 1, every point); rows 0 with
-// fewer than two cameras.
+
+// epipolar_distance() of every point, cameras 0 and 1; empty with fewer
+// than two cameras. Throws dropfit::Error when the column count does not
+// match.
+std::vector<EpipolarSeries> epipolar_series(const std::vector<calibration::Camera>& cameras,
+                                            const Eigen::MatrixXd& uv_px, int n_points);
+// subframe_offset() of epipolar_series(): rows 0 with fewer than two cameras.
 SubframeOffset subframe_offset(const std::vector<calibration::Camera>& cameras, const Eigen::MatrixXd& uv_px,
                                int n_points);
 
@@ -168,9 +173,10 @@ SubframeOffset subframe_offset(const std::vector<calibration::Camera>& cameras, 
 Eigen::MatrixXd resample_camera(const Eigen::MatrixXd& uv_px, int n_points, int n_cameras, int camera,
                                 double late_rows);
 
-// The slips (above) of every point seen by cameras 0 and 1, in point then
-// row order; none with fewer than two cameras. Throws dropfit::Error when
-// the column count does not match.
+// The slips (above) of every point of the series (point p = series[p]), in
+// point then row order.
+std::vector<MarkerSlip> marker_slips(const std::vector<EpipolarSeries>& series);
+// marker_slips() of epipolar_series(): none with fewer than two cameras.
 std::vector<MarkerSlip> marker_slips(const std::vector<calibration::Camera>& cameras, const Eigen::MatrixXd& uv_px,
                                      int n_points);
 
