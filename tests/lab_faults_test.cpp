@@ -99,11 +99,10 @@ TEST(LabFaults, CamerasOutOfStepRejectEveryTrialNamingTheLag) {
 // ---- A marker digitised off its point for a stretch ---------------------------
 
 // imp_base_front clicked 3 px right and down of its point in camera 1 from 5
-// frames before the contact to 25 after, in every trial. Before the check
-// every trial was accepted with its impact velocity about 3 SEs high. The
-// rays through the marker step off each other at the stretch's ends: every
-// trial names the stretch and, the marker missing around the contact, is
-// rejected with it.
+// frames before the contact to 25 after, in every trial (unnoticed, it
+// biases the impact velocity beyond its interval). The rays through the
+// marker step off each other at the stretch's ends: every trial names the
+// stretch and, the marker missing around the contact, is rejected with it.
 TEST(LabFaults, MarkerDigitisedOffForAStretchRejectsNamingIt) {
   Session s = lab_session(11);
   const int contact = s.manifest.video.trigger_frame;
@@ -130,11 +129,11 @@ TEST(LabFaults, MarkerDigitisedOffForAStretchRejectsNamingIt) {
 // Camera 2 half a frame behind camera 1 (its pixels the mean of two rows:
 // cameras not genlocked) and camera 1's pixels drifting by up to 2 px over
 // the record (a lens term the calibration lacks, met as the marker sweeps
-// the image). Before, three trials were rejected as "a camera moved after
-// calibration" (the rays 0.8-1.0 px apart in the fall). The half frame is
-// found in every trial, camera 2 is moved to camera 1's instants, no slip is
-// named, and every trial is accepted with its impact velocity within its
-// 95 % interval of the clean session's.
+// the image). Left in, the half frame keeps the rays apart in the fall, as
+// a camera moved after calibration would. It is found in every trial,
+// camera 2 is moved to camera 1's instants, no slip is named, and every
+// trial is accepted with its impact velocity within its 95 % interval of
+// the clean session's.
 TEST(LabFaults, CamerasHalfAFrameApartAreAligned) {
   const Session clean = lab_session(11);
   Session s = clean;
