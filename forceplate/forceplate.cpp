@@ -459,9 +459,34 @@ std::string mains_hum_reason(const Eigen::VectorXd& fz, double dt, double thresh
   return best;
 }
 
+// Why a record's trigger is not where it was declared, where the record
+// shows it: a load read as tension (the vertical channels' sign reversed,
+// e.g. an export in a plate frame whose z points down: a mat only pushes, so
+// the zeroed Fz cannot fall far below zero), or a crossing one or two
+// samples wide (an electrical glitch: a contact loads the plate for tens of
+// milliseconds). Empty when neither.
+std::string misplaced_trigger_cause(const Eigen::VectorXd& fz, int crossing, double threshold_n) {
+  const double low = fz.minCoeff(), high = fz.maxCoeff();
+  if (-low > 4.0 * threshold_n && -low > 2.0 * high) {
+    return fmt::format(
+        "the zeroed Fz reads down to {:.0f} N and at most {:+.0f} N: the vertical channels read the load as tension "
+        "(their sign is reversed, e.g. an export whose z axis points down)",
+        low, high);
+  }
+  const int n = static_cast<int>(fz.size());
+  if (crossing >= 0 && crossing + 2 < n && fz[crossing + 2] < threshold_n &&
+      (crossing == 0 || fz[crossing - 1] < threshold_n)) {
+    return fmt::format(
+        "Fz jumps to {:.0f} N at sample {} for {} and is back under {} N after it: a glitch on the force channels, "
+        "not a contact",
+        fz[crossing], crossing, fz[crossing + 1] < threshold_n ? "one sample" : "two samples", threshold_n);
+  }
+  return {};
+}
+
 // The first sample at or above the trigger threshold (and its interpolated
 // time) into out; throws when there is none or it is far from the declared
-// trigger sample.
+// trigger sample, with the record's reason where it shows one.
 int trigger_crossing(const Eigen::VectorXd& fz, const Eigen::VectorXd& t, double dt, int declared,
                      const ProcessOptions& options, ForceTrial& out) {
   const int n = static_cast<int>(fz.size());
@@ -473,6 +498,8 @@ int trigger_crossing(const Eigen::VectorXd& fz, const Eigen::VectorXd& t, double
     }
   }
   if (crossing < 0) {
+    if (std::string cause = misplaced_trigger_cause(fz, crossing, options.trigger_threshold_n); !cause.empty())
+      throw Error(fmt::format("force record: no trigger: {}", cause));
     throw Error(fmt::format("force record: no trigger (zeroed Fz never reaches {} N; largest {:.1f} N)",
                             options.trigger_threshold_n, fz.maxCoeff()));
   }
@@ -487,6 +514,10 @@ int trigger_crossing(const Eigen::VectorXd& fz, const Eigen::VectorXd& t, double
       throw Error(fmt::format("force record: {}: Fz first reaches {} N at sample {} ({:+.1f} ms from the declared "
                               "trigger sample {}) on the hum, not on a contact",
                               hum, options.trigger_threshold_n, crossing, 1e3 * t[crossing], declared));
+    if (std::string cause = misplaced_trigger_cause(fz, crossing, options.trigger_threshold_n); !cause.empty())
+      throw Error(fmt::format("force record: Fz first reaches {} N at sample {} ({:+.1f} ms from the declared trigger "
+                              "sample {}): {}",
+                              options.trigger_threshold_n, crossing, 1e3 * t[crossing], declared, cause));
     throw Error(fmt::format(
         "force record: Fz first reaches {} N at sample {} ({:+.1f} ms from the declared trigger sample {}): the "
         "pre-trigger share does not match the record",

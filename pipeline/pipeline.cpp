@@ -120,12 +120,13 @@ std::string point_label(const Manifest& man, int p) {
 // camera 2's pixels are moved to camera 1's instants, their epipolar series
 // with them, and the note says by how much. Not where a whole-frame lag is
 // found (the trial is rejected for it, trial::apply_calibration_gates), nor
-// with more than two cameras.
+// where the rays do not meet at all (reconstruction::rays_meet), nor with
+// more than two cameras.
 void align_subframe(SessionState& state, const TrialRecording& trial,
                     const std::vector<calibration::Camera>& cameras,
                     const std::vector<reconstruction::CameraLag>& lags, Eigen::MatrixXd& uv_px,
                     std::vector<reconstruction::EpipolarSeries>& series) {
-  if (cameras.size() != 2) return;
+  if (cameras.size() != 2 || !reconstruction::rays_meet(series)) return;
   for (const auto& lag : lags)
     if (lag.desynchronised() || lag.changes_part_way()) return;
   const int n_points = trial.tracks.n_points();

@@ -273,7 +273,15 @@ bool stretch_step(const std::vector<double>& d, int first, int last, double sigm
 }  // namespace
 
 bool SubframeOffset::significant() const {
-  return std::abs(rows) >= kMinSubframeRows && std::abs(rows) >= kSubframeZ * se_rows;
+  return std::abs(rows) >= kMinSubframeRows && std::abs(rows) >= kSubframeZ * se_rows && std::abs(rows) < 1.0;
+}
+
+bool rays_meet(const std::vector<EpipolarSeries>& series) {
+  std::vector<double> miss;
+  for (const auto& s : series)
+    for (double d : s.distance_px)
+      if (std::isfinite(d)) miss.push_back(std::abs(d));
+  return !miss.empty() && median(std::move(miss)) <= kRaysMeetPx;
 }
 
 SubframeOffset subframe_offset(const std::vector<EpipolarSeries>& series) {
@@ -353,6 +361,7 @@ std::vector<MarkerSlip> marker_slips(const std::vector<calibration::Camera>& cam
 
 std::vector<MarkerSlip> marker_slips(const std::vector<EpipolarSeries>& series) {
   std::vector<MarkerSlip> out;
+  if (!rays_meet(series)) return out;
   const double offset = subframe_offset(series).rows;
   for (int p = 0; p < static_cast<int>(series.size()); ++p) {
     // The distance less what the cameras' sub-frame offset moves it by.

@@ -143,7 +143,8 @@ EpipolarSeries epipolar_distance(const calibration::Camera& cam0, const calibrat
 // frame is 2.5 mm between the instants the two rays are drawn at, and the
 // rays miss by pixels in the fall and meet at the bottom. It is taken out
 // (resample_camera) when significant(): at least kMinSubframeRows and
-// kSubframeZ SEs.
+// kSubframeZ SEs, and under one row (a whole row and more is a lag between
+// the cameras' rows, camera_lags, or rays that do not meet at all).
 struct SubframeOffset {
   double rows = 0.0;
   double se_rows = std::numeric_limits<double>::quiet_NaN();
@@ -173,8 +174,19 @@ SubframeOffset subframe_offset(const std::vector<calibration::Camera>& cameras, 
 Eigen::MatrixXd resample_camera(const Eigen::MatrixXd& uv_px, int n_points, int n_cameras, int camera,
                                 double late_rows);
 
+// Whether the two cameras' rays meet as a calibration's rays do, up to the
+// small departures the checks above read: the median |distance| over every
+// point and row within kRaysMeetPx. Rays that miss by more are a camera
+// whose pixels do not match its calibration as a whole (the cameras' order,
+// a pixel axis that runs the other way, another session's calibration): the
+// sub-frame offset and the slips have nothing to read there and are not
+// looked for, and the reprojection gate names the trial's fault
+// (trial::apply_calibration_gates). False when no distance is known.
+constexpr double kRaysMeetPx = 5.0;
+bool rays_meet(const std::vector<EpipolarSeries>& series);
+
 // The slips (above) of every point of the series (point p = series[p]), in
-// point then row order.
+// point then row order; none where the rays do not meet (rays_meet).
 std::vector<MarkerSlip> marker_slips(const std::vector<EpipolarSeries>& series);
 // marker_slips() of epipolar_series(): none with fewer than two cameras.
 std::vector<MarkerSlip> marker_slips(const std::vector<calibration::Camera>& cameras, const Eigen::MatrixXd& uv_px,

@@ -277,6 +277,30 @@ TEST(ForcePlate, NanInAChannelIsAnError) {
   expect_error_containing([&] { fp::from_eight_channels(s.t_s, broken.leftCols(7), plate); }, {"8 channels"});
 }
 
+// The vertical channels' sign reversed (an export in a plate frame whose z
+// points down): the load reads as tension, and the error says so rather than
+// that the trigger is misplaced.
+TEST(ForcePlate, ReversedVerticalSignIsNamed) {
+  const fp::PlateGeometry plate;
+  const Synthetic s = synthesise(SynthOptions{}, plate);
+  Eigen::MatrixXd reversed = s.channels;
+  reversed.rightCols(4) *= -1.0;
+  expect_error_containing([&] { fp::process(fp::from_eight_channels(s.t_s, reversed, plate), options_for(s)); },
+                          {"read the load as tension", "sign is reversed"});
+}
+
+// One sample of 400 N on Fz2 long before the contact (an electrical glitch)
+// crosses the trigger threshold: named as a glitch, not as a pre-trigger
+// share that does not match.
+TEST(ForcePlate, GlitchBeforeTheTriggerIsNamed) {
+  const fp::PlateGeometry plate;
+  const Synthetic s = synthesise(SynthOptions{}, plate);
+  Eigen::MatrixXd glitched = s.channels;
+  glitched(20, 5) += 400.0;
+  expect_error_containing([&] { fp::process(fp::from_eight_channels(s.t_s, glitched, plate), options_for(s)); },
+                          {"at sample 20 for one sample", "a glitch on the force channels, not a contact"});
+}
+
 TEST(ForcePlate, TooFewPreTriggerSamplesIsAnError) {
   const fp::PlateGeometry plate;
   SynthOptions o;

@@ -913,7 +913,9 @@ void apply_calibration_gates(TrialResult& result, const reconstruction::Trajecto
     if (!(result.reprojection_residual_px <= limit)) {
       reasons.push_back(fmt::format(
           "markers reproject {:.3g} px from where they were digitised (median over the base markers; the calibration "
-          "fits its points to {:.2g} px, limit {:.2g} px): check the order of [video].cameras and of the tracked points",
+          "fits its points to {:.2g} px, limit {:.2g} px): check the order of [video].cameras and of the tracked points, "
+          "and that each camera's pixel rows run the way its calibration's do (DLTdv's v runs up from the bottom-left "
+          "corner; many trackers' runs down from the top-left)",
           result.reprojection_residual_px, quality.fit_rms_px, limit));
     }
   }
