@@ -422,6 +422,14 @@ struct MatStageOptions {
   // When no single candidate passes a round, pairs of candidates are refitted:
   // each of this many best singles (by held-out error) with every other.
   int pairs = 1;
+  // Each pair's refit: the lead's optimum with the partner seeded, plus
+  // this many screened starts in all (0: the fitter's full multi-start, as
+  // refit_starts). The lead's own refit already searched every spring
+  // ordering, and a pair that passes is refitted in full before it is
+  // kept. A full multi-start per pair was most of a foam session's run
+  // time, where the lumped model stays far from the noise and pairs are
+  // tried every round (BENCHMARKS.md).
+  int pair_starts = 2;
   double wald_sd = 3.0;  // an effect's parameter must stand this many SEs from "absent"
   int threads = 2;       // candidate refits in parallel
   // Called after each round that named an effect, with the model the next

@@ -346,7 +346,11 @@ std::string verdict(const Trial& t, const HeldOutErrors& before, const TrainingF
 // one channel the wrong way on its own (a lower unloading stiffness
 // shortens the rebound the Maxwell arm lengthens). Pairs are tried with
 // the singles that brought the most down, and a pair is kept only when
-// it passes the same test and beats each of its members alone.
+// it passes the same test and beats each of its members alone. Each pair
+// starts from its lead's optimum (the lead's own full refit searched every
+// basin) with the partner's term seeded small, plus the best screened
+// starts (MatStageOptions::pair_starts); the pair kept is refitted with the
+// full multi-start before the next round builds on it (diagnose_mat).
 // Returns the index of the best passing pair in `pairs`, or -1.
 int refit_pairs(const std::vector<fitting::TrialData>& acc, const std::vector<EffectCandidate>& cands,
                 const std::vector<bool>& used, const std::vector<Trial>& tries, const HeldOutErrors& before,
@@ -372,7 +376,7 @@ int refit_pairs(const std::vector<fitting::TrialData>& acc, const std::vector<Ef
       if (dup) continue;
       seen.emplace_back(a, b);
       pairs.push_back(make_trial(current_options, tries[lead].fit ? *tries[lead].fit : current, {a, b},
-                                 options.refit_starts));
+                                 options.pair_starts));
     }
   }
   run_trials(acc, pairs, options.threads);
@@ -635,19 +639,28 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
     Trial& kept = pairs.empty() ? tries[best] : pairs[best];
 
     // The kept model from the fitter's full multi-start (every spring
-    // ordering) when the refit above was a screened one near a model that
-    // lacked the effect: the next round builds on this optimum.
-    if (options.refit_starts > 0) {
+    // ordering) when the refit above was a screened one: the next round
+    // builds on this optimum. A single's screened refit started near a
+    // model that lacked the effect, and the full one is not warm-started (a
+    // start already near the screened optimum cuts the other basins' runs
+    // after the fitter's first stage); a pair's started at its lead's
+    // optimum, and the full one keeps that start, run to convergence beside
+    // the others (protect_initial), as a pair refitted in full from the
+    // first would be.
+    const bool pair_screened = !pairs.empty() && options.pair_starts > 0;
+    if (options.refit_starts > 0 || pair_screened) {
       fitting::FitOptions full = kept.options;
-      // Not warm-started: a start already near the screened optimum cuts the
-      // other basins' runs after the fitter's first stage.
-      full.initial = MatParams{};
+      if (pair_screened) {
+        full.protect_initial = true;
+      } else {
+        full.initial = MatParams{};
+      }
       full.starts = base.starts;
       full.every_ordering = base.every_ordering;
       full.threads = std::max(1, options.threads);
       try {
         fitting::FitResult polished = fitting::fit(acc, full);
-        if (polished.cost < kept.fit->cost) {
+        if (polished.cost < kept.fit->cost || (pair_screened && polished.cost <= kept.fit->cost)) {
           kept.errors = held_out_errors(polished, acc, full);
           kept.fit = std::move(polished);
         }
