@@ -407,6 +407,37 @@ int refit_pairs(const std::vector<fitting::TrialData>& acc, const std::vector<Ef
   return best;
 }
 
+// The kept model refitted with the fitter's full multi-start (every spring
+// ordering) after a screened refit; taken where it fits better. A single's
+// screened refit started near a model that lacked the effect, and the full
+// one is not warm-started (a start already near the screened optimum cuts
+// the other basins' runs after the fitter's first stage); a pair's started
+// at its lead's optimum, and the full one keeps that start, run to
+// convergence beside the others (protect_initial), as a pair refitted in
+// full from the first would be, and is taken at an equal cost too.
+void refit_in_full(const std::vector<fitting::TrialData>& acc, const fitting::FitOptions& base,
+                   const MatStageOptions& options, bool pair, Trial& kept, MatDiagnosis& out) {
+  fitting::FitOptions full = kept.options;
+  if (pair) {
+    full.protect_initial = true;
+  } else {
+    full.initial = MatParams{};
+  }
+  full.starts = base.starts;
+  full.every_ordering = base.every_ordering;
+  full.threads = std::max(1, options.threads);
+  try {
+    fitting::FitResult polished = fitting::fit(acc, full);
+    if (polished.cost < kept.fit->cost || (pair && polished.cost <= kept.fit->cost)) {
+      kept.errors = held_out_errors(polished, acc, full);
+      kept.fit = std::move(polished);
+    }
+  } catch (const std::exception& e) {
+    out.notes.push_back(std::string("mat: the multi-start refit of the kept model failed (") + e.what() +
+                        "); the screened refit is kept");
+  }
+}
+
 // Structure left beyond the noise after the library: unexplained, with its
 // frequency (the period the held-out trials share: one contact is too
 // short to place a period within its 16-18 Hz bins).
@@ -638,37 +669,10 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
     if (best < 0) break;
     Trial& kept = pairs.empty() ? tries[best] : pairs[best];
 
-    // The kept model from the fitter's full multi-start (every spring
-    // ordering) when the refit above was a screened one: the next round
-    // builds on this optimum. A single's screened refit started near a
-    // model that lacked the effect, and the full one is not warm-started (a
-    // start already near the screened optimum cuts the other basins' runs
-    // after the fitter's first stage); a pair's started at its lead's
-    // optimum, and the full one keeps that start, run to convergence beside
-    // the others (protect_initial), as a pair refitted in full from the
-    // first would be.
+    // The kept model from the fitter's full multi-start when the refit
+    // above was a screened one: the next round builds on this optimum.
     const bool pair_screened = !pairs.empty() && options.pair_starts > 0;
-    if (options.refit_starts > 0 || pair_screened) {
-      fitting::FitOptions full = kept.options;
-      if (pair_screened) {
-        full.protect_initial = true;
-      } else {
-        full.initial = MatParams{};
-      }
-      full.starts = base.starts;
-      full.every_ordering = base.every_ordering;
-      full.threads = std::max(1, options.threads);
-      try {
-        fitting::FitResult polished = fitting::fit(acc, full);
-        if (polished.cost < kept.fit->cost || (pair_screened && polished.cost <= kept.fit->cost)) {
-          kept.errors = held_out_errors(polished, acc, full);
-          kept.fit = std::move(polished);
-        }
-      } catch (const std::exception& e) {
-        out.notes.push_back(std::string("mat: the multi-start refit of the kept model failed (") + e.what() +
-                            "); the screened refit is kept");
-      }
-    }
+    if (options.refit_starts > 0 || pair_screened) refit_in_full(acc, base, options, pair_screened, kept, out);
 
     name_effects(out, kept, before, cands, used);
     for (const auto* c : kept.adds) named.push_back(c);
