@@ -51,7 +51,7 @@ std::vector<CalibrationMarker> read_frame_csv(const std::string& path) {
     for (int k = 0; k < 3; ++k) {
       const char* name = k == 0 ? "x_m" : k == 1 ? "y_m" : "z_m";
       m.lab_m[k] = parse_bounded(path, l.number, f[col.at(name)], name, false, kMaxLabCoordinateM,
-                                 "a lab position in metres");
+                                 "a lab position in metres (a frame in millimetres? x_m, y_m and z_m are metres)");
     }
     const Field& role = f[col.at("role")];
     if (role.text == "fit")

@@ -66,7 +66,10 @@ double parse_number(const std::string& file, int line, const Field& f, const std
 double parse_bounded(const std::string& file, int line, const Field& f, const std::string& field, bool nan_ok,
                      double limit, const char* what);
 // Largest magnitudes accepted: lab coordinates (m) and image coordinates (px).
-inline constexpr double kMaxLabCoordinateM = 1e4;
+// A drop test's calibration structure spans a metre or so about the plate,
+// a sports hall's wand volume tens of metres: a coordinate beyond 100 m is a
+// frame written in millimetres (a 0.4 m structure reads 400).
+inline constexpr double kMaxLabCoordinateM = 100.0;
 inline constexpr double kMaxPixel = 1e6;
 long long parse_integer(const std::string& file, int line, const Field& f, const std::string& field);
 double printed_resolution(std::string_view s);

@@ -440,6 +440,29 @@ TEST(LabFaults, PixelRowsFlippedInOneCameraNameTheAxes) {
   for (const auto& note : state.notes) EXPECT_FALSE(contains(note, "not genlocked")) << note;
 }
 
+// [video].points lists the mat's markers first where the tracks hold the
+// impactor's (pt1 and pt2 are the base markers): the points named as base
+// markers stand still while two others fall. Every trial rejected, the
+// first reason naming the order, not only a fall nobody saw.
+TEST(LabFaults, PointsListedInAnotherOrderNameTheOrder) {
+  Session s = independent_session(42);
+  auto& points = s.manifest.video.points;
+  ASSERT_GE(points.size(), 4u);
+  std::swap(points[0], points[2]);
+  std::swap(points[1], points[3]);
+  const pipeline::SessionState state = trials_of(s);
+  if (std::getenv("DROPFIT_SHOW")) std::cerr << verdicts(state);
+  for (const auto& t : state.trials) {
+    EXPECT_FALSE(t.result.accepted) << t.result.id;
+    EXPECT_EQ(t.result.reject_reason.rfind("the points named as the impactor's base markers", 0), 0u)
+        << t.result.reject_reason;
+    EXPECT_TRUE(contains(t.result.reject_reason, "not in the order of [video].points")) << t.result.reject_reason;
+  }
+  // The clean session: no point is out of order.
+  for (const auto& t : trials_of(independent_session(42)).trials)
+    EXPECT_FALSE(contains(t.result.reject_reason, "[video].points")) << t.result.reject_reason;
+}
+
 // Trial 2's folder holds trial 4's force file: trial 2 is rejected (its
 // impulse far from its own momentum) with a reason that says whose record it
 // holds, and trial 4, whose record it is, stands (not "one drop counted

@@ -298,6 +298,17 @@ TEST(LocatedErrors, NumbersOutOfRangeNamedWhereWritten) {
     EXPECT_EQ(e.field(), "x_m");
     EXPECT_NE(e.reason().find("out of range for a lab position in metres"), std::string::npos) << e.what();
   }
+  // A frame written in millimetres (a 0.4 m structure reads 400): refused at
+  // the first coordinate beyond 100 m, the reason naming the unit.
+  write_text(dir / "frame.csv", "id,x_m,y_m,z_m,role\nc01,-424.0,-266.0,30.0,fit\n");
+  try {
+    read_frame_csv(dir.file("frame.csv"));
+    ADD_FAILURE();
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.line(), 2);
+    EXPECT_EQ(e.field(), "x_m");
+    EXPECT_NE(e.reason().find("millimetres"), std::string::npos) << e.what();
+  }
   // 1e400 overflows a double: refused too, located.
   write_text(dir / "frame.csv", "id,x_m,y_m,z_m,role\nc01,0,0,1e400,fit\n");
   try {

@@ -255,6 +255,44 @@ std::string frame_step_reason(const std::vector<double>& ts, const std::vector<d
   return {};
 }
 
+// The points the manifest names as the impactor's base markers stand
+// still while other points fall: the tracks' columns are not in the order
+// of [video].points (DLTdv's pt1, pt2, ... follow the manifest's list). The
+// impactor falls tens of centimetres or more in any digitised window that
+// shows its approach, the mat's surface moves by its deformation only.
+// Empty when the base markers move, or no other point moves much more.
+std::string point_order_reason(const reconstruction::Trajectories& markers, const TrialOptions& o) {
+  auto vertical_range = [&](int p) {
+    double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+    for (int i = 0; i < markers.n_frames(); ++i) {
+      const double z = markers.lab_m(i, 3 * p + 2);
+      if (std::isfinite(z)) lo = std::min(lo, z), hi = std::max(hi, z);
+    }
+    return hi >= lo ? hi - lo : 0.0;
+  };
+  double base = 0.0;
+  std::vector<std::string> base_names, falling;
+  for (int p : o.base_markers) {
+    if (p < 0 || p >= markers.n_points()) continue;
+    base = std::max(base, vertical_range(p));
+    base_names.push_back(point_name(o, p));
+  }
+  double fall = 0.0;
+  for (int p = 0; p < markers.n_points(); ++p) {
+    if (std::find(o.base_markers.begin(), o.base_markers.end(), p) != o.base_markers.end()) continue;
+    const double r = vertical_range(p);
+    if (r > kPointOrderFallM && r > kPointOrderRatio * base) {
+      falling.push_back(fmt::format("{} (column pair {})", point_name(o, p), p + 1));
+      fall = std::max(fall, r);
+    }
+  }
+  if (base_names.empty() || falling.empty()) return {};
+  return fmt::format(
+      "the points named as the impactor's base markers ({}) move {:.3f} m up and down in this trial while {} move "
+      "{:.2f} m: the tracks' columns are not in the order of [video].points (DLTdv's pt1, pt2, ... follow that list)",
+      join(base_names, ", "), base, join(falling, ", "), fall);
+}
+
 // Free-fall fit before the crossing and the video contact instant, into res.
 FreeFallFit free_fall_before(const Eigen::VectorXd& h, int crossing, const VideoClock& clock, const TrialOptions& o,
                              TrialResult& res, std::vector<std::string>& reasons) {
@@ -631,6 +669,7 @@ TrialResult analyse_impl(const forceplate::ForceTrial* force, const std::string&
   if (!force_error.empty()) reasons.push_back(force_error);
 
   const VideoClock clock{given.frame_rate_hz, 1.0 / given.frame_rate_hz, given.trigger_frame};
+  if (std::string r = point_order_reason(markers, given); !r.empty()) reasons.push_back(r);
   // Face height and surface height per frame.
   const Eigen::VectorXd h = mean_height(markers, given.base_markers, given.base_marker_height_m);
   const Eigen::VectorXd surf = mean_height(markers, given.surface_markers, 0.0);

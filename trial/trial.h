@@ -459,6 +459,12 @@ void add_calibration_uncertainty(TrialResult& result, const CalibrationQuality& 
 // and after the bottom, but its rays still miss by several times that); one
 // lag for the whole trial other than 0 (CameraLag::desynchronised) with
 // that lag. Either is the trial's first reason.
+// The tracks' columns in another order than [video].points
+// (trial.cpp, point_order_reason): a point other than the base markers
+// moves more than kPointOrderFallM vertically, and more than
+// kPointOrderRatio times as far as the base markers.
+constexpr double kPointOrderFallM = 0.3;
+constexpr double kPointOrderRatio = 3.0;
 constexpr double kMinResidualLimitPx = 5.0;
 constexpr double kResidualFactor = 10.0;
 constexpr double kSteadyResidualFactor = 5.0;
