@@ -267,6 +267,10 @@ double locate(G g, double a, double ga, double b, double gb) {
 
 }  // namespace
 
+// Steps per simulated second beyond which simulate_chain gives up: the
+// stiffest mats of the generator's worlds take about five thousand.
+constexpr double kMaxStepsPerSecond = 5e4;
+
 ChainSimulation simulate_chain(ModelChoice choice, const MatParams& params, const ChainImpact& im) {
   const ModelKind model = choice.kind();
   check_params(model, params);
@@ -329,8 +333,18 @@ ChainSimulation simulate_chain(ModelChoice choice, const MatParams& params, cons
   record(next++, y);
   int n_events = 0;
   double last_event_t = -1.0;
+  // A chain whose modes outrun the explicit integrator (a massless free
+  // surface relaxing through a near-zero damping, say) takes steps of tens
+  // of nanoseconds: a budget of steps per second simulated turns what would
+  // be hours into an error that names it.
+  const double step_budget = kMaxStepsPerSecond * std::max(t_end, 1.0);
+  long steps = 0;
   while (next < n) {
     const OdeStep st = ode.step(t_end);
+    if (++steps > step_budget)
+      throw Error(fmt::format("generator physics: the chain is too stiff for its explicit integrator ({} steps by "
+                              "t = {:.4f} s, the last {:.2g} s long): draw another mat or effect",
+                              steps, st.t1, st.t1 - st.t0));
     const Eigen::Vector3d g0 = events(st.y0), g1 = events(st.y1);
     int which = -1;
     double t_event = st.t1;
