@@ -267,8 +267,8 @@ double locate(G g, double a, double ga, double b, double gb) {
 
 }  // namespace
 
-// Steps per simulated second beyond which simulate_chain gives up: the
-// stiffest mats of the generator's worlds take about five thousand.
+// Steps per simulated second beyond which simulate_chain gives up: ten
+// times what the generator's stiffest sessions take (docs/blind-test.md).
 constexpr double kMaxStepsPerSecond = 5e4;
 
 ChainSimulation simulate_chain(ModelChoice choice, const MatParams& params, const ChainImpact& im) {
