@@ -284,40 +284,35 @@ TEST(LocatedErrors, TrialFolderLinkedOutsideTheSessionIsRefused) {
   }
 }
 
+// read_frame_csv of `text` throws an InputError at `line` (and `column`
+// when not -1) and `field`, whose reason holds `reason_part`.
+void expect_frame_error(const TempDir& dir, const std::string& text, int line, int column, const std::string& field,
+                        const std::string& reason_part) {
+  write_text(dir / "frame.csv", text);
+  try {
+    read_frame_csv(dir.file("frame.csv"));
+    ADD_FAILURE() << text;
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.line(), line) << e.what();
+    if (column != -1) {
+      EXPECT_EQ(e.column(), column) << e.what();
+    }
+    EXPECT_EQ(e.field(), field) << e.what();
+    EXPECT_NE(e.reason().find(reason_part), std::string::npos) << e.what();
+  }
+}
+
 TEST(LocatedErrors, NumbersOutOfRangeNamedWhereWritten) {
   TempDir dir;
   // 1e308 is a finite double, but no lab position: refused at its line and
   // field, not later as "all lie at one lab position".
-  write_text(dir / "frame.csv", "id,x_m,y_m,z_m,role\nc01,0,0,0,fit\nc02,1e308,0,0.3,fit\n");
-  try {
-    read_frame_csv(dir.file("frame.csv"));
-    ADD_FAILURE();
-  } catch (const InputError& e) {
-    EXPECT_EQ(e.line(), 3);
-    EXPECT_EQ(e.column(), 5);
-    EXPECT_EQ(e.field(), "x_m");
-    EXPECT_NE(e.reason().find("out of range for a lab position in metres"), std::string::npos) << e.what();
-  }
+  expect_frame_error(dir, "id,x_m,y_m,z_m,role\nc01,0,0,0,fit\nc02,1e308,0,0.3,fit\n", 3, 5, "x_m",
+                     "out of range for a lab position in metres");
   // A frame written in millimetres (a 0.4 m structure reads 400): refused at
   // the first coordinate beyond 100 m, the reason naming the unit.
-  write_text(dir / "frame.csv", "id,x_m,y_m,z_m,role\nc01,-424.0,-266.0,30.0,fit\n");
-  try {
-    read_frame_csv(dir.file("frame.csv"));
-    ADD_FAILURE();
-  } catch (const InputError& e) {
-    EXPECT_EQ(e.line(), 2);
-    EXPECT_EQ(e.field(), "x_m");
-    EXPECT_NE(e.reason().find("millimetres"), std::string::npos) << e.what();
-  }
+  expect_frame_error(dir, "id,x_m,y_m,z_m,role\nc01,-424.0,-266.0,30.0,fit\n", 2, 5, "x_m", "millimetres");
   // 1e400 overflows a double: refused too, located.
-  write_text(dir / "frame.csv", "id,x_m,y_m,z_m,role\nc01,0,0,1e400,fit\n");
-  try {
-    read_frame_csv(dir.file("frame.csv"));
-    ADD_FAILURE();
-  } catch (const InputError& e) {
-    EXPECT_EQ(e.line(), 2);
-    EXPECT_EQ(e.field(), "z_m");
-  }
+  expect_frame_error(dir, "id,x_m,y_m,z_m,role\nc01,0,0,1e400,fit\n", 2, -1, "z_m", "");
   // Pixels: a camera file and a marker table.
   std::vector<CalibrationMarker> frame = {{"c01", Eigen::Vector3d::Zero(), MarkerRole::Fit}};
   write_text(dir / "cam1.csv", "id,u_px,v_px\nc01,1e300,5\n");
