@@ -70,6 +70,18 @@ MatParams trial_params(const SynthOptions& o, const MatParams& params, std::size
   return p;
 }
 
+// The foam column of trial ti: each foam's elastic stresses (modulus,
+// plateau, hardening, densification) times (1 - softening)^ti, as a foam
+// damaged by repeated impacts loses stiffness (Mullins-type); its
+// relaxation (relative Prony weights, time constants) and viscosity kept.
+FoamColumn trial_foam(const SynthOptions& o, const FoamColumn& column, std::size_t ti) {
+  FoamColumn c = column;
+  const double f = std::pow(1.0 - o.faults.softening_per_trial, static_cast<double>(ti));
+  for (FoamLayer* l : {&c.top, &c.base})
+    l->modulus_pa *= f, l->plateau_pa *= f, l->hardening_pa *= f, l->densification_pa *= f;
+  return c;
+}
+
 
 // The impactor's tilt, impact point, shear share and channel offsets; returns the face slopes.
 Eigen::Vector2d draw_trial_pose(const SynthOptions& o, std::size_t ti, TrialTruth& tt) {
@@ -96,7 +108,8 @@ Eigen::Vector2d draw_trial_pose(const SynthOptions& o, std::size_t ti, TrialTrut
 }
 
 // The chain simulation from first contact (the generator's own physics.h) and the rebound speed.
-ChainSimulation simulate_trial_impact(const TrialSetup& setup, const MatParams& params, double v, TrialTruth& tt) {
+ChainSimulation simulate_trial_impact(const TrialSetup& setup, const MatParams& params, double v, std::size_t ti,
+                                      TrialTruth& tt) {
   const SynthOptions& o = setup.o;
   const double g = setup.g, fs = setup.fs, t_end_force = setup.t_end_force, t_end_video = setup.t_end_video;
   // -- Physics from first contact: the generator's own (physics.h).
@@ -108,7 +121,7 @@ ChainSimulation simulate_trial_impact(const TrialSetup& setup, const MatParams& 
   impact.output_dt_s = kSimDt;
   impact.catch_at_apex = o.catch_at_apex;
   const ChainSimulation sim =
-      o.foam ? simulate_foam_column(*o.foam, impact) : simulate_chain(o.model, params, impact);
+      o.foam ? simulate_foam_column(trial_foam(o, *o.foam, ti), impact) : simulate_chain(o.model, params, impact);
   require(sim.grf_n.size() >= 2, "simulation returned no samples");
   tt.impact_velocity_after_m_s = kNaN;
   if (std::isfinite(sim.separation_s))
@@ -399,7 +412,7 @@ SimulatedTrial simulate_trial(const TrialSetup& setup, std::size_t ti) {
   tt.drop_height_m = v * v / (2.0 * g);
 
   const Eigen::Vector2d face_slopes = draw_trial_pose(o, ti, tt);
-  const ChainSimulation sim = simulate_trial_impact(setup, params, v, tt);
+  const ChainSimulation sim = simulate_trial_impact(setup, params, v, ti, tt);
   const TrialMotion motion{sim, v, g, o.foam || o.model != ModelKind::Model1};
   tt.dish_factors.clear();
   for (const Eigen::Vector2d& xy : mat_xy) {
