@@ -426,9 +426,9 @@ struct MatStageOptions {
   // this many screened starts in all (0: the fitter's full multi-start, as
   // refit_starts). The lead's own refit already searched every spring
   // ordering, and a pair that passes is refitted in full before it is
-  // kept. A full multi-start per pair was most of a foam session's run
-  // time, where the lumped model stays far from the noise and pairs are
-  // tried every round (BENCHMARKS.md).
+  // kept. On a foam session the lumped model stays far from the noise and
+  // pairs are tried every round, where a full multi-start per pair would
+  // be most of the run (BENCHMARKS.md).
   int pair_starts = 2;
   double wald_sd = 3.0;  // an effect's parameter must stand this many SEs from "absent"
   int threads = 2;       // candidate refits in parallel
