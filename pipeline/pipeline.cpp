@@ -247,21 +247,18 @@ void analyse_trials(SessionState& state, double max_tilt_deg, const std::functio
   state.reached = Stage::Trials;
 }
 
-void fit_models(SessionState& state, const std::vector<fitting::ModelKind>& models, int threads,
-                const std::function<void(const std::string&)>& say) {
-  require(state, Stage::Trials, "fitting");
-  // A refit (e.g. on plate-corrected force) replaces the earlier fits: their
-  // warnings and failures go with them.
-  state.fit_notes.clear();
-  state.fit_notes_at = state.notes.size();
-  state.failed_fits = 0;
-  state.models_asked = models;
-  state.fits.clear();
-  state.reached = Stage::Fits;
-  if (state.accepted() == 0) {
-    state.fit_notes.push_back("no accepted trial: nothing to fit");
-    return;
-  }
+namespace {
+
+// Fits `models` on the state's fit data, none of them among state.fits yet:
+// Model 4 first (the loop's baseline), then Model 5 warm-started from its
+// optimum (their parameters mean the same thing; Model 4's fit already in
+// the state when it is not among `models`) with one start and few
+// iterations, on the same worker (its exact derivatives split over
+// FitOptions::threads); the others on the other workers meanwhile. The
+// fits and failures join the state's in the order the fits stage was
+// asked for, with their notes.
+void add_fits(SessionState& state, const std::vector<fitting::ModelKind>& models, int threads,
+              const std::function<void(const std::string&)>& say) {
   const Manifest& manifest = state.session.manifest;
   std::vector<std::optional<fitting::FitResult>> fits(models.size());
   std::vector<std::string> errors(models.size());
@@ -273,13 +270,10 @@ void fit_models(SessionState& state, const std::vector<fitting::ModelKind>& mode
       errors[k] = e.what();
     }
   };
-  // Model 4 first (the loop's baseline), then Model 5 warm-started from its
-  // optimum (their parameters mean the same thing) with one start and few
-  // iterations, on the same worker (its exact derivatives split over
-  // FitOptions::threads); Models 1-3 on the others meanwhile.
   std::size_t k4 = models.size();
   for (std::size_t k = 0; k < models.size(); ++k)
     if (models[k] == fitting::ModelKind::Model4) k4 = k;
+  const fitting::FitResult* fitted4 = state.fit(fitting::ModelKind::Model4);
   std::vector<std::size_t> queue, fives;
   if (k4 < models.size()) queue.push_back(k4);
   for (std::size_t k = 0; k < models.size(); ++k) {
@@ -288,15 +282,16 @@ void fit_models(SessionState& state, const std::vector<fitting::ModelKind>& mode
   }
   auto fit_five = [&](std::size_t k) {
     auto options = fit_options(manifest, models[k]);
-    if (k4 < models.size() && fits[k4]) {
-      options.initial = fits[k4]->params;
+    const fitting::FitResult* four = k4 < models.size() ? (fits[k4] ? &*fits[k4] : nullptr) : fitted4;
+    if (four) {
+      options.initial = four->params;
       options.starts = 1;
       options.max_iterations = 30;
       options.first_stage_iterations = 30;  // one run of 30 iterations (no second stage)
     }
     fit_one(k, options);
   };
-  // Model 5 follows Model 4 on its worker; without Model 4 it runs last.
+  // Model 5 follows Model 4 on its worker; without Model 4 to fit it runs last.
   if (k4 >= models.size())
     for (std::size_t k : fives) queue.push_back(k);
   parallel_for(queue.size(), std::max(1, threads), [&](std::size_t i) {
@@ -309,17 +304,85 @@ void fit_models(SessionState& state, const std::vector<fitting::ModelKind>& mode
     if (k == k4)
       for (std::size_t f : fives) fit_five(f);
   });
-  for (std::size_t k = 0; k < models.size(); ++k) {
-    const auto name = fitting::model_name(models[k]);
-    if (!fits[k]) {
-      state.fit_notes.push_back(fmt::format("{} fit failed: {}", name, errors[k]));
+  // Merged in the asked order; each fit's warnings and each failure noted.
+  std::vector<fitting::FitResult> merged;
+  std::vector<std::string> notes;
+  for (const fitting::ModelKind m : state.models_asked) {
+    const auto name = fitting::model_name(m);
+    const auto k = static_cast<std::size_t>(std::find(models.begin(), models.end(), m) - models.begin());
+    if (k < models.size() && !fits[k]) {
+      notes.push_back(fmt::format("{} fit failed: {}", name, errors[k]));
       ++state.failed_fits;
       continue;
     }
-    for (const auto& w : fits[k]->warnings) state.fit_notes.push_back(name + ": " + w);
-    state.fits.push_back(std::move(*fits[k]));
+    fitting::FitResult* f = k < models.size() ? &*fits[k] : nullptr;
+    for (auto& earlier : state.fits)
+      if (!f && earlier.model == m) f = &earlier;
+    if (!f) {
+      // Asked, not fitted now, and not among the fits: it failed before.
+      for (const auto& n : state.fit_notes)
+        if (n.rfind(name + " fit failed: ", 0) == 0) notes.push_back(n);
+      continue;
+    }
+    for (const auto& w : f->warnings) notes.push_back(name + ": " + w);
+    merged.push_back(std::move(*f));
   }
+  state.fits = std::move(merged);
+  state.fit_notes = std::move(notes);
 }
+
+}  // namespace
+
+void fit_models(SessionState& state, const std::vector<fitting::ModelKind>& models, int threads,
+                const std::function<void(const std::string&)>& say) {
+  require(state, Stage::Trials, "fitting");
+  // A refit (e.g. on plate-corrected force) replaces the earlier fits: their
+  // warnings and failures go with them.
+  state.fit_notes.clear();
+  state.fit_notes_at = state.notes.size();
+  state.failed_fits = 0;
+  state.models_asked = models;
+  state.models_after_loop.clear();
+  state.fits.clear();
+  state.reached = Stage::Fits;
+  if (state.accepted() == 0) {
+    state.fit_notes.push_back("no accepted trial: nothing to fit");
+    return;
+  }
+  add_fits(state, models, threads, say);
+}
+
+namespace {
+
+// With the loop to follow, only its baseline (Model 4) is fitted before it:
+// the other models asked are fitted after it (fit_after_loop), on the force
+// the loop leaves, so a plate gain or drift it removes does not make them
+// twice.
+void fit_baseline_first(SessionState& state, const std::vector<fitting::ModelKind>& models, int threads,
+                        const std::function<void(const std::string&)>& say) {
+  const bool has4 = std::find(models.begin(), models.end(), fitting::ModelKind::Model4) != models.end();
+  if (!has4 || models.size() == 1) {
+    fit_models(state, models, threads, say);
+    return;
+  }
+  fit_models(state, {fitting::ModelKind::Model4}, threads, say);
+  state.models_asked = models;
+  for (const fitting::ModelKind m : models)
+    if (m != fitting::ModelKind::Model4) state.models_after_loop.push_back(m);
+}
+
+// The models fit_baseline_first left for after the loop (none when the
+// loop's plate correction refitted them all, or no trial stands).
+void fit_after_loop(SessionState& state, int threads, const std::function<void(const std::string&)>& say) {
+  const std::vector<fitting::ModelKind> models = std::move(state.models_after_loop);
+  state.models_after_loop.clear();
+  if (models.empty() || state.accepted() == 0) return;
+  const Stage reached = state.reached;
+  add_fits(state, models, threads, say);
+  state.reached = reached;
+}
+
+}  // namespace
 
 void close_loop(SessionState& state) {
   require(state, Stage::Fits, "closing the loop");
@@ -537,10 +600,13 @@ SessionState build_stages(Session session, const BuildOptions& options) {
   }
   if (upto(Stage::Reconstruction)) reconstruct(state);
   if (upto(Stage::Trials)) analyse_trials(state, options.max_tilt_deg, say);
-  if (upto(Stage::Fits)) fit_models(state, options.models, options.threads, say);
   if (upto(Stage::Loop)) {
+    fit_baseline_first(state, options.models, options.threads, say);
     if (say) say("closing the loop");
     close_loop(state);
+    fit_after_loop(state, options.threads, say);
+  } else if (upto(Stage::Fits)) {
+    fit_models(state, options.models, options.threads, say);
   }
   return state;
 }

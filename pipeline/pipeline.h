@@ -48,6 +48,9 @@ struct SessionState : diagnosis::SessionData {
   Session session;              // the inputs as read (manifest, calibration files, tracks, force records)
   Stage reached = Stage::Read;  // the last stage built
   std::vector<fitting::ModelKind> models_asked;  // the fits stage's models
+  // Those of them build() fits after the loop, on the force it leaves (only
+  // the loop's baseline, Model 4, is fitted before it).
+  std::vector<fitting::ModelKind> models_after_loop;
   std::optional<diagnosis::DiagnosisResult> loop;  // when the loop ran
   // Model 6 when the loop's final model did not reach the noise (model6_stage.h).
   std::optional<Model6Stage> model6;

@@ -174,6 +174,44 @@ TEST(ValidationUpstream, PlateCorrectionRefitKeepsOneSetOfFitNotes) {
   // The refit Model 2 and 4 warn of their weakly pinned parameters (as a
   // clean fit would: the force is corrected, the data no richer).
   EXPECT_GE(fit_notes, 2);
+  // Both stand on the corrected force (the state's fit data once corrected),
+  // in the order asked: each the fit the fitter makes of it directly (the
+  // same deterministic multi-start, so the same optimum to rounding).
+  ASSERT_EQ(state.fits.size(), 2u);
+  const std::vector<fitting::TrialData>& corrected_data = state.fit_data;
+  for (std::size_t k = 0; k < 2; ++k) {
+    ASSERT_EQ(state.fits[k].model, options.models[k]);
+    const fitting::FitResult direct =
+        fitting::fit(corrected_data, pipeline::fit_options(state.session.manifest, options.models[k]));
+    EXPECT_NEAR(state.fits[k].params.k1_n_m, direct.params.k1_n_m, 1e-6 * direct.params.k1_n_m);
+    EXPECT_NEAR(state.fits[k].params.r1_n_s_m, direct.params.r1_n_s_m, 1e-6 * direct.params.r1_n_s_m);
+  }
+}
+
+// Without a plate correction the models other than the loop's baseline are
+// fitted after the loop, on the same data: the fits the fits stage alone
+// makes, in the order asked (Model 5 warm-started from Model 4 as there).
+TEST(ValidationUpstream, ModelsFittedAfterTheLoopAreTheFitsStages) {
+  DROPFIT_NEED_SHARED(validation("v2-linear-control"));
+  const Session session = capture::read_session(validation("v2-linear-control"));
+  pipeline::BuildOptions options;
+  options.models = {fitting::ModelKind::Model2, fitting::ModelKind::Model4, fitting::ModelKind::Model5};
+  options.upto = pipeline::Stage::Fits;
+  const pipeline::SessionState fits_only = pipeline::build(session, options);
+  options.upto = pipeline::Stage::Loop;
+  const pipeline::SessionState looped = pipeline::build(session, options);
+  ASSERT_TRUE(looped.loop.has_value());
+  ASSERT_FALSE(looped.loop->plate_correction.drift);
+  ASSERT_EQ(looped.fits.size(), 3u);
+  ASSERT_EQ(fits_only.fits.size(), 3u);
+  EXPECT_TRUE(looped.models_after_loop.empty());
+  for (std::size_t k = 0; k < 3; ++k) {
+    ASSERT_EQ(looped.fits[k].model, options.models[k]);
+    EXPECT_NEAR(looped.fits[k].params.k1_n_m, fits_only.fits[k].params.k1_n_m, 1e-9 * fits_only.fits[k].params.k1_n_m);
+    EXPECT_NEAR(looped.fits[k].params.r1_n_s_m, fits_only.fits[k].params.r1_n_s_m,
+                1e-9 * fits_only.fits[k].params.r1_n_s_m);
+    EXPECT_EQ(looped.fits[k].warnings, fits_only.fits[k].warnings);
+  }
 }
 
 // Clean sessions: the free-flight balance gives 1 within 0.5 % on each.
