@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <numeric>
 #include <utility>
 
@@ -216,16 +217,19 @@ struct MultiStart {
       if (std::isfinite(runs[k].cost) && (runs[k].cost <= o.follow_factor * lead || is_initial(k)))
         follow.push_back(k);
     if (o.max_iterations <= first_stage.max_iterations) follow.clear();
-    follow_in_chunks(follow);
+    follow_in_chunks(follow, is_initial);
   }
 
   // Then in chunks: a run that stays far behind the best while it crawls
-  // (gaining little per chunk) is dropped; the others go on until Ceres
-  // stops them on a tolerance or the iteration limit. Runs in a wrong basin
+  // (gaining little per chunk) is dropped, as is one that could not reach
+  // the best at its pace (a lumped model on a foam mat leaves runs within a
+  // few times the best cost gaining under 1e-4 of it per chunk, up to the
+  // iteration limit); the others go on until Ceres stops them on a
+  // tolerance or the iteration limit. Runs in a wrong basin
   // crawl along a bound, gaining a few per cent a chunk; a run that has
   // entered its basin gains orders of magnitude. (The follow stage has
   // max_iterations of its own after the first stage.)
-  void follow_in_chunks(std::vector<size_t> active) {
+  void follow_in_chunks(std::vector<size_t> active, const std::function<bool(size_t)>& is_protected) {
     int done = 0;
     while (!active.empty() && done < o.max_iterations) {
       FitOptions chunk = o;
@@ -239,12 +243,20 @@ struct MultiStart {
       done += chunk.max_iterations;
       double best_now = std::numeric_limits<double>::infinity();
       for (const auto& r : runs) best_now = std::min(best_now, r.cost);
+      // Chunks the runs still have.
+      const double left = static_cast<double>(o.max_iterations - done) / std::max(1, o.follow_chunk_iterations);
       std::vector<size_t> next;
       for (size_t i = 0; i < active.size(); ++i) {
         const Optimum& r = runs[active[i]];
         if (r.converged || !std::isfinite(r.cost)) continue;
         const double gain = (before[i] - r.cost) / std::max(r.cost, 1e-300);
         if (r.cost > o.drop_factor * best_now && gain < o.drop_gain) continue;
+        // A run behind the best that, gaining what it gained in this chunk in
+        // every chunk it has left, would still end behind it: its basin is
+        // not the best one (Levenberg-Marquardt's gains shrink as it closes
+        // in, so the straight line is the run's best case). A protected
+        // given start goes on.
+        if (!is_protected(active[i]) && r.cost - left * (before[i] - r.cost) > best_now) continue;
         next.push_back(active[i]);
       }
       active = std::move(next);
