@@ -179,8 +179,10 @@ struct Model6FitResult {
   std::vector<std::string> warnings;
   // The common timing discrepancy of every trial's contact instant: the
   // training force misfit above the noise (RMS) over the RMS rate of the
-  // fitted force; by Cauchy-Schwarz the largest clock shift a misfit of
-  // that size can bias a least-squares contact by (0 at the noise).
+  // fitted force, by Cauchy-Schwarz the largest clock shift a misfit of
+  // that size can bias a least-squares contact by, in quadrature with the
+  // shift that best aligns the fitted face travel with the measured one
+  // (how far the column's contact stands from the video's); 0 at the noise.
   double timing_discrepancy_s = 0.0;
   double cost = 0.0;                         // 0.5 x sum of squared residuals (noise units)
   int n_residuals = 0;

@@ -1,7 +1,9 @@
 // Model 6's uncertainty calibrations (fitting/model6_calibration.h): the
 // cross-validated discrepancy of the prediction intervals and the clock
-// offsets' Birge and common-bias widening, on hand-computed values.
+// offsets' Birge and common-bias widening, and the common timing
+// discrepancy (fitting/model6_fit.h), on hand-computed values.
 #include "fitting/model6_calibration.h"
+#include "fitting/model6_fit.h"
 
 #include <gtest/gtest.h>
 
@@ -128,6 +130,49 @@ TEST(Model6Calibration, ConsistentOffsetsKeepTheirSes) {
   EXPECT_NEAR(out[0], 1.25, 1e-12);
   EXPECT_DOUBLE_EQ(birge_ratio({1.0}, {0.1}), 1.0);
   EXPECT_DOUBLE_EQ(birge_ratio({1.0, 2.0}, {0.1, 0.0}), 1.0);
+}
+
+// The common timing discrepancy from a training trial whose fitted force
+// matches the record within its noise while the fitted face travel runs
+// 0.3 ms behind the video's: the travel's least-squares shift, 0.3 ms; a
+// constant 2 mm travel offset (no timing) adds nothing; the travel matched,
+// 0.
+TEST(Model6Timing, TravelShiftedInTimeIsATimingDiscrepancy) {
+  const double period_s = 0.1, h = 1e-4, lag_s = 3e-4;
+  const int n = static_cast<int>(period_s / h) + 1;
+  const double pi = std::acos(-1.0);
+  auto travel = [&](double t) { return 0.1 * std::sin(pi * t / period_s); };
+  TrialData td;
+  td.id = "trial1";
+  td.force_noise_n = 1.5;
+  td.marker_noise_m = 2e-4;
+  td.t_s.resize(n);
+  td.grf_n.resize(n);
+  td.impactor_m.resize(n);
+  TrialReport rep;
+  rep.id = td.id;
+  rep.train = true;
+  rep.window_end_s = period_s;
+  rep.simulation.grf_n.resize(n);
+  rep.simulation.impactor_m.resize(n);
+  for (int i = 0; i < n; ++i) {
+    const double t = i * h;
+    td.t_s[i] = t;
+    rep.simulation.grf_n[i] = 5000.0 * std::sin(pi * t / period_s);
+    td.grf_n[i] = rep.simulation.grf_n[i] + (i % 2 == 0 ? 1.0 : -1.0);  // within the plate's noise
+    rep.simulation.impactor_m[i] = travel(t - lag_s);
+    td.impactor_m[i] = travel(t);
+  }
+  Model6FitResult res;
+  res.trials = {rep};
+  add_model6_prediction_intervals({td}, Model6FitOptions{}, res);
+  EXPECT_NEAR(res.timing_discrepancy_s, lag_s, 0.02 * lag_s);
+  for (int i = 0; i < n; ++i) res.trials.front().simulation.impactor_m[i] = td.impactor_m[i] - 0.002;
+  add_model6_prediction_intervals({td}, Model6FitOptions{}, res);
+  EXPECT_NEAR(res.timing_discrepancy_s, 0.0, 1e-3 * lag_s);
+  res.trials.front().simulation.impactor_m = td.impactor_m;
+  add_model6_prediction_intervals({td}, Model6FitOptions{}, res);
+  EXPECT_NEAR(res.timing_discrepancy_s, 0.0, 1e-12);
 }
 
 }  // namespace
