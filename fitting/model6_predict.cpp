@@ -330,9 +330,9 @@ void cross_validate(std::vector<TrialPart>& parts, const Model6FitResult& res, c
 // trial, on the samples of the contact window: for the force, that bound
 // with the misfit above the plate's noise (how far the misfit can move the
 // contact the force places); for the face travel, the shift itself (how
-// far the column's contact stands from the one the video shows: a column
-// whose travel runs 2-3 mm short at 5-6 m/s is 0.3 ms off). The two in
-// quadrature, RMS over the training trials.
+// far the column's contact stands from the one the video shows: a travel
+// 2 mm behind at 6 m/s is 0.33 ms). The two in quadrature, RMS over the
+// training trials.
 
 // The shift <m, f'> / <f', f'> (`bound`: |m| / |f'|, the misfit above
 // `noise`) on the contact window; 0 where nothing is measured.
