@@ -377,9 +377,7 @@ void fit_after_loop(SessionState& state, int threads, const std::function<void(c
   const std::vector<fitting::ModelKind> models = std::move(state.models_after_loop);
   state.models_after_loop.clear();
   if (models.empty() || state.accepted() == 0) return;
-  const Stage reached = state.reached;
   add_fits(state, models, threads, say);
-  state.reached = reached;
 }
 
 }  // namespace
