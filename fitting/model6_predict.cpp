@@ -335,7 +335,7 @@ void cross_validate(std::vector<TrialPart>& parts, const Model6FitResult& res, c
 // training trials.
 
 // The shift <m, f'> / <f', f'> (`bound`: |m| / |f'|, the misfit above
-// `noise`) on the contact window; 0 where nothing is measured.
+// `noise`) on the contact window; NaN where nothing is measured.
 double channel_timing(const TrialData& td, const Eigen::VectorXd& fitted, const Eigen::VectorXd& measured,
                       double noise, double window_end_s, bool bound) {
   double ss = 0.0, rate = 0.0, along = 0.0;
@@ -346,7 +346,7 @@ double channel_timing(const TrialData& td, const Eigen::VectorXd& fitted, const 
     if (!std::isfinite(d) || !std::isfinite(df)) continue;
     ss += d * d, rate += df * df, along += d * df, ++m;
   }
-  if (m == 0 || !(rate > 0.0)) return 0.0;
+  if (m == 0 || !(rate > 0.0)) return std::numeric_limits<double>::quiet_NaN();
   if (!bound) return std::abs(along) / rate;
   return std::sqrt(std::max(ss / m - noise * noise, 0.0) / (rate / m));
 }
@@ -358,10 +358,13 @@ double timing_discrepancy(const std::vector<TrialData>& trials, const Model6FitO
     const auto td = std::find_if(trials.begin(), trials.end(), [&](const TrialData& t) { return t.id == r.id; });
     if (!r.train || td == trials.end() || r.simulation.grf_n.size() != td->t_s.size()) continue;
     const double fn = std::isfinite(td->force_noise_n) ? td->force_noise_n : o.force_noise_n;
+    // A trial without force samples in its window says nothing of timing.
     const double dt_force = channel_timing(*td, r.simulation.grf_n, td->grf_n, fn, r.window_end_s, true);
+    if (!std::isfinite(dt_force)) continue;
     double dt_travel = 0.0;
     if (r.simulation.impactor_m.size() == td->t_s.size() && td->impactor_m.size() == td->t_s.size())
       dt_travel = channel_timing(*td, r.simulation.impactor_m, td->impactor_m, 0.0, r.window_end_s, false);
+    if (!std::isfinite(dt_travel)) dt_travel = 0.0;
     sum += dt_force * dt_force + dt_travel * dt_travel, ++n;
   }
   return n > 0 ? std::sqrt(sum / n) : 0.0;
