@@ -179,7 +179,21 @@ class TrialCostFunction : public ceres::CostFunction {
     set_num_residuals(w->n_residuals());
   }
   bool Evaluate(double const* const* p, double* r, double** jac) const override {
-    if (!jac) return cost_(p, r);
+    if (!jac) {
+      // Ceres' projected line search and its trust region may ask for the
+      // same point twice in a row: answered once.
+      std::vector<double> key(p[0], p[0] + kFree);
+      key.push_back(p[1][0]);
+      key.push_back(*cost_.free_exponent ? 1.0 : 0.0);
+      if (key == last_key_ && !last_res_.empty()) {
+        std::copy(last_res_.begin(), last_res_.end(), r);
+        return true;
+      }
+      if (!cost_(p, r)) return false;
+      last_key_ = std::move(key);
+      last_res_.assign(r, r + num_residuals());
+      return true;
+    }
     using J = ceres::Jet<double, 8>;
     const int nr = num_residuals();
     bool ok[2] = {false, false};
@@ -209,6 +223,7 @@ class TrialCostFunction : public ceres::CostFunction {
 
  private:
   TrialCost cost_;
+  mutable std::vector<double> last_key_, last_res_;
 };
 
 }  // namespace
@@ -445,6 +460,48 @@ class CancelCallback : public ceres::IterationCallback {
   const std::atomic<bool>* cancel_;
 };
 
+// Stops a second-stage solve that cannot end below `must_beat` (the cost
+// it has to beat to be kept): checked every kChunk iterations, the solve
+// stops when its cost, less what it would still gain at its last chunk's
+// rate for every chunk it has left, stays above must_beat. Where the
+// search ends (the rate is falling) that bound holds; a run crawling in a
+// worse basin stops without its last iterations.
+class BehindCallback : public ceres::IterationCallback {
+ public:
+  static constexpr int kChunk = 10;
+  BehindCallback(double must_beat, int max_iterations) : must_beat_(must_beat), max_iterations_(max_iterations) {}
+  ceres::CallbackReturnType operator()(const ceres::IterationSummary& it) override {
+    if (it.iteration == 0) chunk_start_ = it.cost;
+    if (!std::isfinite(must_beat_) || it.iteration == 0 || it.iteration % kChunk != 0) return ceres::SOLVER_CONTINUE;
+    const double cost = it.cost;
+    const double gain = std::max(0.0, chunk_start_ - cost);
+    chunk_start_ = cost;
+    const double chunks_left = std::ceil(static_cast<double>(max_iterations_ - it.iteration) / kChunk);
+    return cost - chunks_left * gain > must_beat_ ? ceres::SOLVER_TERMINATE_SUCCESSFULLY : ceres::SOLVER_CONTINUE;
+  }
+
+ private:
+  double must_beat_;
+  int max_iterations_;
+  double chunk_start_ = std::numeric_limits<double>::infinity();
+};
+
+// The solver's settings of every solve here. With bounds, Ceres follows
+// each trust-region step by a projected Armijo line search; with its
+// default cubic interpolation each trial point costs a Jacobian (two
+// 8-wide Jet passes), with quadratic interpolation only the cost (one
+// simulation in doubles). At most 3 trial points: after those the trust
+// region judges the step itself.
+ceres::Solver::Options solver_options(const Model6FitOptions& options, CancelCallback* cancel) {
+  ceres::Solver::Options so;
+  so.num_threads = 1;
+  so.logging_type = ceres::SILENT;
+  so.line_search_interpolation_type = ceres::QUADRATIC;
+  so.max_num_line_search_step_size_iterations = 3;
+  if (options.cancel) so.callbacks.push_back(cancel);
+  return so;
+}
+
 void throw_if_cancelled(const Model6FitOptions& options) {
   if (options.cancel && options.cancel->load()) throw Error("fit_model6: cancelled");
 }
@@ -477,16 +534,16 @@ long reprofiled_rounds(ceres::Problem& problem, const ceres::Solver::Options& so
 // the clock shifts held, run twice (held at the contact estimate
 // throughout, and re-profiled between rounds), then the second stage
 // (shifts free) from each first-stage end; the lower final cost is the fit
-// (the cheaper first-stage end need not lead to the cheaper optimum).
-// Returns the iterations taken; `summary` is the fit's.
+// (the cheaper first-stage end need not lead to the cheaper optimum). A
+// second-stage solve that cannot end below must_beat (what the search
+// around this one keeps it against) nor below the other second-stage end
+// stops early (BehindCallback). Returns the iterations taken; `summary` is
+// the fit's.
 long fit_staged(ceres::Problem& problem, const double* u0, double* u, std::vector<double>& shifts,
                 const std::vector<Window>& windows, const Model6FitOptions& options, bool free_exponent,
-                ceres::Solver::Summary& summary) {
-  ceres::Solver::Options so;
-  so.num_threads = 1;
-  so.logging_type = ceres::SILENT;
+                double must_beat, ceres::Solver::Summary& summary) {
   CancelCallback cancel(options.cancel);
-  if (options.cancel) so.callbacks.push_back(&cancel);
+  ceres::Solver::Options so = solver_options(options, &cancel);
   std::copy(u0, u0 + kFree, u);
   std::fill(shifts.begin(), shifts.end(), 0.0);
   for (double& sh : shifts) problem.SetParameterBlockConstant(&sh);
@@ -502,16 +559,21 @@ long fit_staged(ceres::Problem& problem, const double* u0, double* u, std::vecto
   for (double& sh : shifts) problem.SetParameterBlockVariable(&sh);
   so.max_num_iterations = options.max_iterations;
   so.function_tolerance = options.function_tolerance;
-  ceres::Solve(so, &problem, &summary);
-  iterations += static_cast<long>(summary.iterations.size());
+  auto second_stage = [&](double bound) {
+    ceres::Solver::Options o = so;
+    BehindCallback behind(bound, o.max_num_iterations);
+    o.callbacks.push_back(&behind);
+    ceres::Solve(o, &problem, &summary);
+    iterations += static_cast<long>(summary.iterations.size());
+  };
+  second_stage(must_beat);
   double best_u[kFree];
   std::copy(u, u + kFree, best_u);
   const std::vector<double> best_shifts = shifts;
   const ceres::Solver::Summary profiled_summary = summary;
   std::copy(held_u, held_u + kFree, u);
   std::fill(shifts.begin(), shifts.end(), 0.0);
-  ceres::Solve(so, &problem, &summary);
-  iterations += static_cast<long>(summary.iterations.size());
+  second_stage(std::min(must_beat, profiled_summary.final_cost));
   if (!(summary.final_cost < profiled_summary.final_cost)) {
     std::copy(best_u, best_u + kFree, u);
     std::copy(best_shifts.begin(), best_shifts.end(), shifts.begin());  // in place: the problem holds their addresses
@@ -578,12 +640,9 @@ void check_extrapolation(const std::vector<TrialData>& trials, const Model6FitOp
 // u is the problem's parameter block. Returns the iterations taken.
 long screen_starts(ceres::Problem& problem, double* u, double* u0, const double* lo, const double* hi,
                    std::vector<double>& shifts, const Model6FitOptions& options) {
-  ceres::Solver::Options so;
-  so.num_threads = 1;
-  so.logging_type = ceres::SILENT;
-  so.max_num_iterations = options.screen_iterations;
   CancelCallback cancel(options.cancel);
-  if (options.cancel) so.callbacks.push_back(&cancel);
+  ceres::Solver::Options so = solver_options(options, &cancel);
+  so.max_num_iterations = options.screen_iterations;
   for (double& sh : shifts) problem.SetParameterBlockConstant(&sh);
   long iterations = 0;
   double best_cost = std::numeric_limits<double>::infinity(), best[kFree];
@@ -627,12 +686,14 @@ struct Search {
 // lowers the cost of any misfit a little. The free path runs when the held
 // fit is short of the noise (its RMS residual above free_exponent_min_rms
 // noise SDs), and its exponent is kept when it ends at
-// free_exponent_cost_ratio of the held path's cost or below. Returns the
+// free_exponent_cost_ratio of the held path's cost or below. A search that
+// is kept only below must_beat (a restart against the first search's cost)
+// passes it on, the free path with its own bound beside it. Returns the
 // iterations taken.
-long search_from(Search& s, const double* u0, ceres::Solver::Summary& summary) {
+long search_from(Search& s, const double* u0, double must_beat, ceres::Solver::Summary& summary) {
   const Model6FitOptions& options = *s.options;
   *s.free_exponent = false;
-  long iterations = fit_staged(*s.problem, u0, s.u, *s.shifts, *s.windows, options, false, summary);
+  long iterations = fit_staged(*s.problem, u0, s.u, *s.shifts, *s.windows, options, false, must_beat, summary);
   throw_if_cancelled(options);
   double held_u[kFree];
   std::copy(s.u, s.u + kFree, held_u);
@@ -641,7 +702,8 @@ long search_from(Search& s, const double* u0, ceres::Solver::Summary& summary) {
   const double held_rms = std::sqrt(2.0 * held_summary.final_cost / std::max(1, s.n_res));
   if (held_rms > options.free_exponent_min_rms) {
     *s.free_exponent = true;
-    iterations += fit_staged(*s.problem, u0, s.u, *s.shifts, *s.windows, options, true, summary);
+    const double free_must_beat = std::min(must_beat, options.free_exponent_cost_ratio * held_summary.final_cost);
+    iterations += fit_staged(*s.problem, u0, s.u, *s.shifts, *s.windows, options, true, free_must_beat, summary);
     throw_if_cancelled(options);
   }
   if (*s.free_exponent && !(summary.final_cost <= options.free_exponent_cost_ratio * held_summary.final_cost)) {
@@ -694,7 +756,7 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
   std::copy(u, u + kFree, u0);
   ceres::Solver::Summary summary;
   Search search{&problem, u, &shifts, &windows, &options, &free_exponent, n_res};
-  long iterations = search_from(search, u0, summary);
+  long iterations = search_from(search, u0, std::numeric_limits<double>::infinity(), summary);
   // A fit short of the noise may be a wrong basin of the generic start:
   // the search runs again from the start the screen prefers among the base
   // foam's other stiffnesses, and the lower cost is the fit.
@@ -710,7 +772,7 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
     std::copy(u0, u0 + kFree, u1);
     iterations += screen_starts(problem, u, u1, lo, hi, shifts, options);
     throw_if_cancelled(options);
-    iterations += search_from(search, u1, summary);
+    iterations += search_from(search, u1, first_summary.final_cost, summary);
     if (!(summary.final_cost < first_summary.final_cost)) {
       std::copy(first_u, first_u + kFree, u);
       std::copy(first_shifts.begin(), first_shifts.end(), shifts.begin());  // in place: the problem holds their addresses

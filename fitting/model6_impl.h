@@ -134,13 +134,14 @@ struct StepView {
 };
 
 // The step's work arrays: node travels un and velocities vn at the step's
-// end, element stresses (elastic sen, total sign, tangent kn x A / h), the
-// Newton system.
+// end, element stresses (elastic sen with its tangent dsn in strain, total
+// sign, the total's tangent kn x A / h), the Newton system (res: the last
+// iteration's correction once solved).
 template <typename S>
 struct StepWork {
-  std::vector<S> un, vn, sen, sign, kn, res, diag, off;
+  std::vector<S> un, vn, sen, dsn, sign, kn, res, diag, off;
   void resize(int n) {
-    for (auto* x : {&un, &vn, &sen, &sign, &kn, &res, &diag, &off}) x->assign(n, S(0.0));
+    for (auto* x : {&un, &vn, &sen, &dsn, &sign, &kn, &res, &diag, &off}) x->assign(n, S(0.0));
   }
 };
 
@@ -156,6 +157,7 @@ void step_stresses(const StepView<S>& c, double dt, StepWork<S>& w) {
     S s, ds;
     elastic(c.law[j], e, &s, &ds);
     w.sen[j] = s;
+    w.dsn[j] = ds;
     const S dse = s - c.se[j];
     w.sign[j] = s + c.e1 * c.q1[j] + c.b1 * dse + c.e2 * c.q2[j] + c.b2 * dse + c.eta * edot;
     w.kn[j] = S(c.area) * (ds * (S(1.0) + c.b1 + c.b2) + c.eta * S(2.0 / dt)) / c.h[j];
@@ -288,6 +290,7 @@ class Column {
     prony_dt_ = dt;
   }
   StepView<T> view() const;
+  void linearised_stresses();        // finish_step's stresses after a single correcting iteration
 
   Impact imp_;
   double area_;
@@ -305,6 +308,12 @@ class Column {
   StepWork<T> w_;
   mutable double prony_dt_ = -1.0;
   mutable T e1_, e2_, b1_, b2_;
+  // The step's last Newton iteration started converged (in doubles; for a
+  // Jet, the one in T after the doubles converged): its correction is at
+  // the round-off level in value (for a Jet, the derivatives' whole
+  // change), so the step's end stresses follow from the iteration's own by
+  // their tangent instead of a second pass through the foam law.
+  bool linearised_ = false;
   // For a Jet column, the step solved first in doubles (the values), then
   // one Newton iteration in T carries the derivatives: at the converged
   // values the residual is zero, so that iteration's change of the
@@ -406,8 +415,7 @@ void Column<T>::newton(double dt) {
   const StepView<T> c = view();
   double scale = 0.0;
   if constexpr (std::is_same_v<T, double>) {
-    for (int it = 0; it < 30; ++it)
-      if (newton_iteration(c, dt, w_, scale)) break;
+    for (int it = 0; it < 30 && !linearised_; ++it) linearised_ = newton_iteration(c, dt, w_, scale);
   } else {
     StepView<double> d;
     d.n = n_, d.area = area_, d.law = law_d_.data(), d.h = h_.data();
@@ -428,6 +436,7 @@ void Column<T>::newton(double dt) {
     if (converged) {
       for (int j = 0; j < n_; ++j) w_.un[j] = T(w_d_.un[j]);
       newton_iteration(c, dt, w_, scale);
+      linearised_ = true;
       return;
     }
     // Not converged in doubles: the values are those of the last iterate
@@ -439,13 +448,30 @@ void Column<T>::newton(double dt) {
   }
 }
 
+// The element strains move by de = (du_j - du_{j+1}) / h_j with the
+// correction du = -res, their rates by de x 2 / dt (the trapezoidal rule),
+// so the elastic stress by ds x de and the total by kn x h / A x de; the
+// second-order remainder is of the correction's value squared.
+template <typename T>
+void Column<T>::linearised_stresses() {
+  for (int j = 0; j < n_; ++j) {
+    const T de = ((j + 1 < n_ ? w_.res[j + 1] : T(0.0)) - w_.res[j]) / h_[j];
+    w_.sen[j] += w_.dsn[j] * de;
+    w_.sign[j] += w_.kn[j] * (h_[j] / area_) * de;
+  }
+}
+
 template <typename T>
 void Column<T>::finish_step(double dt) {
   const double c4 = 4.0 / (dt * dt), c2 = 2.0 / dt;
-  const StepView<T> c = view();
   for (int j = 0; j < n_; ++j) w_.vn[j] = T(c2) * (w_.un[j] - u_[j]) - v_[j];
   if (driven_) w_.vn[0] = top_velocity_;
-  step_stresses(c, dt, w_);
+  if (linearised_) {
+    linearised_stresses();
+    linearised_ = false;
+  } else {
+    step_stresses(view(), dt, w_);
+  }
   for (int j = 0; j < n_; ++j) {
     q1_[j] = e1_ * q1_[j] + b1_ * (w_.sen[j] - se_[j]);
     q2_[j] = e2_ * q2_[j] + b2_ * (w_.sen[j] - se_[j]);

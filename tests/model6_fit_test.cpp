@@ -162,12 +162,22 @@ TEST(Model6Fit, GeneratorFoam) {
 }
 TEST(Model6Fit, GeneratorFoamWithinTargets) { check_generator(2407, kGeneratorFoam); }
 
-// Seed 2425 (a stiff base foam): from the generic start the search ends
-// at 7.5 noise SDs of training force; the second start, a stiffer base,
-// at 4.7 (held-out peaks within 0.3 % either way). Asserted: the held-out
-// targets and the training force under 6 noise SDs, which only the second
-// start reaches.
-TEST(Model6Fit, GeneratorFoamSecondStart) { check_generator(2425, Tolerance{0.02, 1.5e-3, 3e-4, 6.0, 4.0}); }
+// Seed 2425 (a stiff base foam): from the generic start alone the search
+// ends in a basin far from the noise; the second start (the base foam's
+// stresses doubled or halved, screened) ends in one of a fraction of its
+// cost. Asserted: the held-out targets, and the fit's cost under half the
+// cost the generic start alone reaches (docs/models.md gives both).
+TEST(Model6Fit, GeneratorFoamSecondStart) {
+  fitting::Model6FitResult fit;
+  check_generator(2425, kGeneratorFoam, &fit);
+  const synth::SyntheticSession s = synth::make_session(synth::foam_world_options(2425));
+  const pipeline::SessionState state = pipeline::build(s.session, {.upto = pipeline::Stage::Trials});
+  fitting::Model6FitOptions o = options_for(s.session.manifest);
+  o.start_base_scales.clear();
+  const fitting::Model6FitResult first_only = fitting::fit_model6(state.fit_data, o);
+  std::printf("cost %.1f with the second start, %.1f from the generic start alone\n", fit.cost, first_only.cost);
+  EXPECT_LT(fit.cost, 0.5 * first_only.cost);
+}
 
 // Every trial's 95 % prediction intervals on a generator foam the column
 // fits well (seed 2407: training residual 5.9 and 1.3 noise SDs, held-out
