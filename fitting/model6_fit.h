@@ -81,7 +81,7 @@ struct Model6FitOptions {
   // Empty or {1}: no second start.
   std::vector<double> start_base_scales{2.0, 0.5};
   int screen_iterations = 10;
-  double restart_min_rms = 4.0;
+  double restart_min_rms = 3.0;
   // The first stage (clock shifts held, re-profiled between rounds): rounds
   // of stage_iterations each.
   int stage_rounds = 4;
