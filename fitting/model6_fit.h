@@ -209,7 +209,8 @@ Model6Params model6_params_at(const Eigen::VectorXd& coordinates, const Model6Fi
 // Every trial's prediction (res.trials[].prediction): peak force, time to
 // peak (from the face's contact), largest face travel and the force band
 // on the trial's samples with 95 % intervals from the coordinates'
-// covariance (central differences through simulate_model6), the trial's
+// covariance (central differences through simulate_model6, one-sided for
+// a coordinate at the law's edge, e_d = 1), the trial's
 // impact velocity SE (a held-out trial's: a training trial's own velocity
 // error is absorbed by the fit) and, with options.model_discrepancy, the
 // model's discrepancy (res.discrepancy; with cross_validate_discrepancy a

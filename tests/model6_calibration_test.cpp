@@ -175,5 +175,61 @@ TEST(Model6Timing, TravelShiftedInTimeIsATimingDiscrepancy) {
   EXPECT_NEAR(res.timing_discrepancy_s, 0.0, 1e-12);
 }
 
+// A fit that ends with the densification strain at its bound, 1 (the
+// column is not defined beyond it): every trial still gets its intervals,
+// the densification strain's part of the peak's variance from the one
+// side the law allows. Its SE against the secant over 1 % on that side:
+// within 10 %.
+TEST(Model6Intervals, DensificationStrainAtItsBoundStillPropagates) {
+  Model6FitOptions o;
+  o.model_discrepancy = false;
+  Model6Params p;
+  p.top.densification_strain = p.base.densification_strain = 1.0;
+  const FoamLaw& t = p.top;
+  const FoamLaw& b = p.base;
+  Eigen::VectorXd u(15);
+  u << std::log(t.plateau_pa), std::log(t.modulus_pa), std::log(t.hardening_pa), std::log(t.densification_pa), 0.0,
+      std::log(b.plateau_pa), std::log(b.modulus_pa), std::log(b.hardening_pa), std::log(b.densification_pa),
+      std::log(p.prony_g1), std::log(p.prony_tau1_s), std::log(p.prony_g2), std::log(p.prony_tau2_s),
+      std::log(p.viscosity_pa_s), std::log(o.densification_exponent - 1.0);
+  const Model6Params at = model6_params_at(u, o, false);
+  TrialData td;
+  td.id = "trial1";
+  td.impact_velocity_m_s = 6.0;
+  td.force_noise_n = 2.0;
+  const double h = 1e-4;
+  const int n = 1200;
+  td.t_s = Eigen::VectorXd::LinSpaced(n, 0.0, (n - 1) * h);
+  Impact imp;
+  imp.mass_kg = td.impactor_mass_kg;
+  imp.gravity_m_s2 = td.gravity_m_s2;
+  imp.velocity_m_s = td.impact_velocity_m_s;
+  imp.output_dt_s = h;
+  imp.duration_s = (n - 1) * h + 0.5 * h;
+  const Simulation s = simulate_model6(at, o.geometry, imp);
+  td.grf_n = s.grf_n.head(n);
+  td.impactor_m = s.impactor_m.head(n);
+  Model6FitResult res;
+  res.coordinates = u;
+  res.params = at;
+  res.coordinate_covariance = Eigen::MatrixXd::Zero(15, 15);
+  const double sd = 0.01;
+  res.coordinate_covariance(4, 4) = sd * sd;
+  res.trials = {predict_model6(td, at, o)};
+  add_model6_prediction_intervals({td}, o, res);
+  EXPECT_TRUE(res.warnings.empty());
+  const PredictionInterval& peak = res.trials.front().prediction.peak_force_n;
+  ASSERT_TRUE(std::isfinite(peak.value));
+  ASSERT_TRUE(std::isfinite(peak.se));
+  Eigen::VectorXd below = u;
+  below[4] = -sd;
+  const Model6Result r0 = simulate_model6_detailed(at, o.geometry, imp);
+  const Simulation s1 = simulate_model6(model6_params_at(below, o, false), o.geometry, imp);
+  const double secant_n = std::abs(s.grf_n.maxCoeff() - s1.grf_n.maxCoeff());
+  EXPECT_GT(r0.max_top_strain, 0.5);  // the impact reaches densification
+  EXPECT_GT(secant_n, 10.0 * td.force_noise_n);
+  EXPECT_NEAR(peak.se, secant_n, 0.1 * secant_n);
+}
+
 }  // namespace
 }  // namespace dropfit::fitting
