@@ -68,7 +68,9 @@ void final_model_section(HtmlDocument& doc, const SessionReport& r) {
   std::vector<std::vector<std::string>> rows;
   for (const auto& e : fit.estimates) {
     std::string note = !e.identifiable ? "not identifiable" : e.at_bound ? "at its bound" : e.free ? "" : "fixed";
-    if (!e.identifiable && !e.note.empty()) note += ": " + e.note;
+    // A note says why a parameter has no interval, or what limits it.
+    if (!e.note.empty() && (!e.identifiable || (e.free && !std::isfinite(e.ci_low))))
+      note += (note.empty() ? "" : ": ") + e.note;
     const std::string ci = e.free && std::isfinite(e.ci_low)
                                ? fmt::format("[{:.4g}, {:.4g}] ({})", e.ci_low, e.ci_high, e.interval)
                                : "-";

@@ -163,6 +163,15 @@ TEST(Model6Fit, GeneratorFoam) {
       EXPECT_LT(r.max_base_strain, 0.30);
   }
   EXPECT_TRUE(fit.warnings.empty());
+  // The column's parameters are its effective values: an SE, no interval
+  // (base_densification_pa ends at its bound here, and its note says so).
+  ASSERT_EQ(fit.estimates.size(), 14u);
+  for (const auto& e : fit.estimates) {
+    SCOPED_TRACE(e.name);
+    EXPECT_GT(e.se, 0.0);
+    EXPECT_TRUE(std::isnan(e.ci_low) && std::isnan(e.ci_high));
+    EXPECT_NE(e.note.find(e.at_bound ? "the bound" : "effective value"), std::string::npos);
+  }
 }
 TEST(Model6Fit, GeneratorFoamWithinTargets) { check_generator(2407, kGeneratorFoam); }
 
