@@ -326,22 +326,6 @@ struct Scored {
   double log_t = kNaN;  // the paired test on log errors, when it decided
 };
 
-// The paired held-out test on the logarithms of the markers' errors: for
-// leaving markers out, whose effect on the others spans orders of
-// magnitude (a gross label slip: 18 markers from 30-7000 mm to 0.4 mm), so
-// that one huge error before does not hide the fall in all the others
-// (on the raw errors t = 1.7). Returns t, or NaN when not computable.
-double log_paired_t(const std::vector<double>& before_mm, const std::vector<double>& after_mm) {
-  std::vector<double> lb, la;
-  for (std::size_t i = 0; i < before_mm.size(); ++i)
-    if (before_mm[i] > 0.0 && after_mm[i] > 0.0) {
-      lb.push_back(std::log(before_mm[i]));
-      la.push_back(std::log(after_mm[i]));
-    }
-  if (lb.size() < 3) return kNaN;
-  return paired_improvement(detail::to_vector(lb), detail::to_vector(la), 0.0, 0.0, 0.0).t;
-}
-
 // The round's hypotheses. Lens distortion with as few terms as the markers
 // support: k1 first (one more parameter per camera), then the tangential
 // pair; each camera must keep twice as many equations as parameters.

@@ -728,13 +728,25 @@ HeldOutChoice choose_by_held_out(const std::vector<fitting::TrialData>& trials, 
   }
   const PairedImprovement pi = paired_improvement(detail::to_vector(pa), detail::to_vector(pb),
                                                   options.decision.t_critical, options.decision.min_relative, 0.0);
+  // Errors in noise SDs are a scale: a model that divides every trial's
+  // error by a like factor is better however unequal the trials' errors
+  // are, and the differences' t misses that when one trial carries most of
+  // the error. So the pair is also judged on the logarithms (each trial's
+  // error ratio); either test passing, with the mean drop at least
+  // min_relative of the mean error, is better beyond noise.
   c.t = pi.t;
-  if (pi.significant) {
+  c.t_log = log_paired_t(pa, pb);
+  const bool by_ratio = c.t_log >= options.decision.t_critical && pi.mean_drop > 0.0 &&
+                        pi.mean_drop >= options.decision.min_relative * std::abs(pi.mean_before);
+  const std::string ts = std::isfinite(c.t_log)
+                             ? fmt::format("paired t = {:.1f}, on the errors' logarithms {:.1f}", pi.t, c.t_log)
+                             : fmt::format("paired t = {:.1f}", pi.t);
+  if (pi.significant || by_ratio) {
     c.chosen = name_b;
-    c.evidence = fmt::format("{} predicts the held-out trials better (paired t = {:.1f}): {}", name_b, pi.t, numbers);
+    c.evidence = fmt::format("{} predicts the held-out trials better ({}): {}", name_b, ts, numbers);
   } else {
-    c.evidence = fmt::format("{} does not predict the held-out trials better beyond noise (paired t = {:.1f}): {} kept; {}",
-                             name_b, pi.t, name_a, numbers);
+    c.evidence = fmt::format("{} does not predict the held-out trials better beyond noise ({}): {} kept; {}", name_b,
+                             ts, name_a, numbers);
   }
   return c;
 }

@@ -15,13 +15,17 @@ namespace dropfit::diagnosis {
 // return them, train = false on the held-out trials) judged on both
 // channels, per trial sqrt(force^2 + travel^2) in noise SDs, paired over the
 // held-out trials both predict. B replaces A when it is better beyond noise
-// (options.decision: t_critical, min_relative); no information criterion
-// can veto that (it may only break a tie, which this leaves to A).
+// (options.decision: t_critical, min_relative): the paired t of the errors'
+// drops, or of their logarithms' (log_paired_t: every trial's error divided
+// by a like factor, at least 3 trials), passes t_critical, and the mean drop is at least min_relative of
+// A's mean error; no information criterion can veto that (it may only break
+// a tie, which this leaves to A).
 struct HeldOutChoice {
   std::string chosen;
   double force_a_sd = 0.0, force_b_sd = 0.0, impactor_a_sd = 0.0, impactor_b_sd = 0.0;  // RMS over trials
   double peak_a_pct_max = 0.0, peak_b_pct_max = 0.0;  // largest |held-out peak error|
-  double t = 0.0;  // paired t of the drop from A to B
+  double t = 0.0;      // paired t of the drop from A to B
+  double t_log = 0.0;  // the same on the errors' logarithms (NaN: fewer than 3 trials)
   int n = 0;       // held-out trials compared
   std::string evidence;
 };

@@ -619,6 +619,20 @@ PairedImprovement paired_improvement(const Eigen::VectorXd& before, const Eigen:
   return p;
 }
 
+double log_paired_t(const std::vector<double>& before, const std::vector<double>& after) {
+  std::vector<double> lb, la;
+  for (std::size_t i = 0; i < before.size() && i < after.size(); ++i)
+    if (before[i] > 0.0 && after[i] > 0.0) {
+      lb.push_back(std::log(before[i]));
+      la.push_back(std::log(after[i]));
+    }
+  if (lb.size() < 3) return std::numeric_limits<double>::quiet_NaN();
+  const auto vec = [](const std::vector<double>& v) {
+    return Eigen::Map<const Eigen::VectorXd>(v.data(), static_cast<Eigen::Index>(v.size())).eval();
+  };
+  return paired_improvement(vec(lb), vec(la), 0.0, 0.0, 0.0).t;
+}
+
 const TermScore* StructureReport::best() const {
   if (terms.empty() || terms.front().share_alone < min_share) return nullptr;
   return &terms.front();

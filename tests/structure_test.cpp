@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <vector>
 #include <cstdio>
 #include <numbers>
 #include <random>
@@ -342,6 +343,22 @@ TEST(PairedImprovement, NeedsAConsistentDrop) {
   EXPECT_NEAR(good.mean_drop, (19.6 - 5.3) / 5.0, 1e-12);
   EXPECT_FALSE(paired_improvement(before, mixed).significant);
   EXPECT_FALSE(paired_improvement(before, after, 2.0, 0.1, 5.0).significant);  // below the noise floor
+}
+
+// Three held-out trials whose errors each fall by a factor of 33-44, one
+// of them carrying most of the error: the differences' t is 1.32 (below
+// 2), the logarithms' 43.6 (ratios 40, 33.3 and 44.4: logs 3.689, 3.507,
+// 3.794, mean 3.663, SD 0.145). A pair with a zero error is left out, and
+// fewer than three pairs give NaN.
+TEST(PairedImprovement, OnTheLogarithmsSeesALikeFactor) {
+  const std::vector<double> before{20.0, 60.0, 400.0}, after{0.5, 1.8, 9.0};
+  const PairedImprovement raw = paired_improvement(Eigen::Map<const Eigen::VectorXd>(before.data(), 3),
+                                                   Eigen::Map<const Eigen::VectorXd>(after.data(), 3));
+  EXPECT_NEAR(raw.t, 1.32, 0.01);
+  EXPECT_FALSE(raw.significant);
+  EXPECT_NEAR(log_paired_t(before, after), 43.6, 0.1);
+  EXPECT_TRUE(std::isnan(log_paired_t({20.0, 60.0, 0.0}, {0.5, 1.8, 9.0})));
+  EXPECT_TRUE(std::isnan(log_paired_t({20.0, 60.0}, {0.5, 1.8})));
 }
 
 }  // namespace
