@@ -696,6 +696,42 @@ MatDiagnosis diagnose_mat(const std::vector<fitting::TrialData>& trials, const M
   return out;
 }
 
+namespace {
+
+// The paired drop from a to b (per trial, in noise SDs) beyond noise: the
+// differences' t, or the logarithms' (every trial's error divided by a like
+// factor; at least 3 trials), at least t_critical, with the mean drop at
+// least min_relative of a's mean. Errors in noise SDs are a scale, and the
+// differences' t misses a like factor when one trial carries most of the
+// error (drops of 40, 100 and 240 SDs: t = 1.7).
+struct Drop {
+  double t = 0.0, t_log = 0.0;
+  bool beyond_noise = false;
+};
+Drop paired_drop(const std::vector<double>& a, const std::vector<double>& b, const MatStageOptions& options) {
+  const PairedImprovement pi = paired_improvement(detail::to_vector(a), detail::to_vector(b),
+                                                  options.decision.t_critical, options.decision.min_relative, 0.0);
+  Drop d;
+  d.t = pi.t;
+  d.t_log = log_paired_t(a, b);
+  d.beyond_noise = pi.significant || (d.t_log >= options.decision.t_critical && pi.mean_drop > 0.0 &&
+                                      pi.mean_drop >= options.decision.min_relative * std::abs(pi.mean_before));
+  return d;
+}
+
+double rms(const std::vector<double>& v) {
+  double ss = 0.0;
+  for (double x : v) ss += x * x;
+  return v.empty() ? 0.0 : std::sqrt(ss / static_cast<double>(v.size()));
+}
+
+std::string t_text(const Drop& d) {
+  return std::isfinite(d.t_log) ? fmt::format("paired t = {:.1f}, on the logarithms {:.1f}", d.t, d.t_log)
+                                : fmt::format("paired t = {:.1f}", d.t);
+}
+
+}  // namespace
+
 HeldOutChoice choose_by_held_out(const std::vector<fitting::TrialData>& trials, const std::string& name_a,
                                  const std::vector<fitting::TrialReport>& a, const std::string& name_b,
                                  const std::vector<fitting::TrialReport>& b, const MatStageOptions& options) {
@@ -708,13 +744,16 @@ HeldOutChoice choose_by_held_out(const std::vector<fitting::TrialData>& trials, 
   c.impactor_b_sd = eb.mean_impactor_sd();
   c.peak_a_pct_max = ea.peak_pct.size() ? ea.peak_pct.maxCoeff() : kNaN;
   c.peak_b_pct_max = eb.peak_pct.size() ? eb.peak_pct.maxCoeff() : kNaN;
-  // Paired over the held-out trials both predict.
-  std::vector<double> pa, pb;
+  // Paired over the held-out trials both predict: both channels in one
+  // number, and each channel alone.
+  std::vector<double> pa, pb, fa, fb, ka, kb;
   for (size_t i = 0; i < ea.ids.size(); ++i)
     for (size_t j = 0; j < eb.ids.size(); ++j)
       if (ea.ids[i] == eb.ids[j]) {
         pa.push_back(std::hypot(ea.force_sd[i], ea.impactor_sd[i]));
         pb.push_back(std::hypot(eb.force_sd[j], eb.impactor_sd[j]));
+        fa.push_back(ea.force_sd[i]), fb.push_back(eb.force_sd[j]);
+        ka.push_back(ea.impactor_sd[i]), kb.push_back(eb.impactor_sd[j]);
       }
   c.n = static_cast<int>(pa.size());
   const std::string numbers = fmt::format(
@@ -726,27 +765,34 @@ HeldOutChoice choose_by_held_out(const std::vector<fitting::TrialData>& trials, 
     c.evidence = "fewer than two held-out trials predicted by both: " + name_a + " kept (" + numbers + ")";
     return c;
   }
-  const PairedImprovement pi = paired_improvement(detail::to_vector(pa), detail::to_vector(pb),
-                                                  options.decision.t_critical, options.decision.min_relative, 0.0);
-  // Errors in noise SDs are a scale: a model that divides every trial's
-  // error by a like factor is better however unequal the trials' errors
-  // are, and the differences' t misses that when one trial carries most of
-  // the error. So the pair is also judged on the logarithms (each trial's
-  // error ratio); either test passing, with the mean drop at least
-  // min_relative of the mean error, is better beyond noise.
-  c.t = pi.t;
-  c.t_log = log_paired_t(pa, pb);
-  const bool by_ratio = c.t_log >= options.decision.t_critical && pi.mean_drop > 0.0 &&
-                        pi.mean_drop >= options.decision.min_relative * std::abs(pi.mean_before);
-  const std::string ts = std::isfinite(c.t_log)
-                             ? fmt::format("paired t = {:.1f}, on the errors' logarithms {:.1f}", pi.t, c.t_log)
-                             : fmt::format("paired t = {:.1f}", pi.t);
-  if (pi.significant || by_ratio) {
+  // Both channels in one number; or, as the mat stage keeps an effect, one
+  // channel above the noise gate falling beyond noise while neither gets
+  // worse (above the gate and beyond min_relative over A's): the combined
+  // number weighs the channels by their noise, so a force error of hundreds
+  // of noise SDs can hide a travel error cut tenfold in every trial.
+  const Drop both = paired_drop(pa, pb, options);
+  c.t = both.t;
+  c.t_log = both.t_log;
+  const double gate = options.gate_noise_sd;
+  std::string alone;
+  bool worse = false;
+  for (int ch = 0; ch < 2; ++ch) {
+    const std::vector<double>& va = ch == 0 ? fa : ka;
+    const std::vector<double>& vb = ch == 0 ? fb : kb;
+    const double e0 = rms(va), e1 = rms(vb);
+    if (e1 > std::max(gate, e0 * (1.0 + options.decision.min_relative))) worse = true;
+    if (e0 <= gate || !alone.empty()) continue;
+    const Drop d = paired_drop(va, vb, options);
+    if (d.beyond_noise) alone = fmt::format("{} alone: {}", ch == 0 ? "force" : "impactor travel", t_text(d));
+  }
+  const bool by_channel = !alone.empty() && !worse;
+  if (both.beyond_noise || by_channel) {
     c.chosen = name_b;
-    c.evidence = fmt::format("{} predicts the held-out trials better ({}): {}", name_b, ts, numbers);
+    c.evidence = fmt::format("{} predicts the held-out trials better ({}{}): {}", name_b, t_text(both),
+                             both.beyond_noise ? "" : "; " + alone + ", the other channel not worse", numbers);
   } else {
     c.evidence = fmt::format("{} does not predict the held-out trials better beyond noise ({}): {} kept; {}", name_b,
-                             ts, name_a, numbers);
+                             t_text(both), name_a, numbers);
   }
   return c;
 }

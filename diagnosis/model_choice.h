@@ -13,18 +13,21 @@ namespace dropfit::diagnosis {
 
 // Model choice by held-out prediction: two models' reports (as the fitters
 // return them, train = false on the held-out trials) judged on both
-// channels, per trial sqrt(force^2 + travel^2) in noise SDs, paired over the
-// held-out trials both predict. B replaces A when it is better beyond noise
-// (options.decision: t_critical, min_relative): the paired t of the errors'
-// drops, or of their logarithms' (log_paired_t: every trial's error divided
-// by a like factor, at least 3 trials), passes t_critical, and the mean drop is at least min_relative of
-// A's mean error; no information criterion can veto that (it may only break
-// a tie, which this leaves to A).
+// channels, paired over the held-out trials both predict. B replaces A when
+// it is better beyond noise (options.decision: t_critical, min_relative)
+// on both channels in one number (per trial sqrt(force^2 + travel^2) in
+// noise SDs), or on one channel above options.gate_noise_sd while neither
+// channel gets worse (as the mat stage keeps an effect). Better beyond
+// noise: the paired t of the drops, or of the errors' logarithms
+// (log_paired_t: every trial's error divided by a like factor, at least 3
+// trials), at least t_critical, and the mean drop at least min_relative of
+// A's mean error. No information criterion can veto that (it may only
+// break a tie, which this leaves to A).
 struct HeldOutChoice {
   std::string chosen;
   double force_a_sd = 0.0, force_b_sd = 0.0, impactor_a_sd = 0.0, impactor_b_sd = 0.0;  // RMS over trials
   double peak_a_pct_max = 0.0, peak_b_pct_max = 0.0;  // largest |held-out peak error|
-  double t = 0.0;      // paired t of the drop from A to B
+  double t = 0.0;      // paired t of the drop from A to B (both channels in one number)
   double t_log = 0.0;  // the same on the errors' logarithms (NaN: fewer than 3 trials)
   int n = 0;       // held-out trials compared
   std::string evidence;

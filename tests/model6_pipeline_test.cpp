@@ -214,34 +214,59 @@ TEST(Model6Pipeline, EarlyFitIsTheFitAfterTheLoopOrNone) {
   EXPECT_THROW(fitting::fit_model6(data, options), Error);
 }
 
-// Seed 2471 of the generator's foam world (a session nobody tuned on): the
-// column cuts each of the three held-out trials' error 10-40 fold against
-// the loop's lumped model, but one trial carries most of the lumped
-// model's error, so the drops' paired t alone is 1.7; on the errors'
-// logarithms it passes, and Model 6 is final. Asserted: Model 6 final, the
-// logarithms' t at least 2 with the drops' below it, every held-out peak
-// within 2 % of the truth and travel within 1 mm (measured: 0.27 %,
-// 0.21 mm; Model 4 was 15.4 % off).
-TEST(Model6Pipeline, GeneratorFoamChosenOnTheErrorRatios) {
-  const synth::SyntheticSession syn = synth::make_session(synth::foam_world_options(2471));
+// Generator foam-world sessions nobody tuned on, where the loop's lumped
+// model stays far above the noise and Model 6 predicts every held-out trial
+// better, yet the test on the drops of both channels in one number fails:
+// Model 6 must be final (it was not: Model 4 stayed, 15-28 % off).
+// Asserted: Model 6 final, the drops' t below 2, every held-out peak within
+// peak_tol of the truth and travel within 1 mm; each test: what decided.
+diagnosis::HeldOutChoice check_generator_choice(std::uint64_t seed, double peak_tol) {
+  const synth::SyntheticSession syn = synth::make_session(synth::foam_world_options(seed));
   const pipeline::SessionState state = pipeline::build(syn.session);
-  ASSERT_TRUE(state.model6.has_value());
-  ASSERT_EQ(state.final_label(), "model6") << state.model6->reason;
-  ASSERT_TRUE(state.model6->choice.has_value());
-  EXPECT_LT(state.model6->choice->t, 2.0) << state.model6->reason;
-  EXPECT_GE(state.model6->choice->t_log, 2.0) << state.model6->reason;
+  if (!state.model6 || !state.model6->choice) {
+    ADD_FAILURE() << "Model 6 not fitted";
+    return {};
+  }
+  const diagnosis::HeldOutChoice& choice = *state.model6->choice;
+  EXPECT_LT(choice.t, 2.0) << state.model6->reason;
+  if (state.final_label() != "model6") {
+    ADD_FAILURE() << "final model " << state.final_label() << ": " << state.model6->reason;
+    return choice;
+  }
   const fitting::Model6FitResult& fit = *state.final_model6();
   int held_out = 0;
   for (const auto& t : syn.truth.trials) {
     SCOPED_TRACE(t.id);
     const auto rep = std::find_if(fit.trials.begin(), fit.trials.end(), [&](const auto& r) { return r.id == t.id; });
-    ASSERT_NE(rep, fit.trials.end());
+    if (rep == fit.trials.end()) {
+      ADD_FAILURE() << "not predicted";
+      continue;
+    }
     if (rep->train) continue;
     ++held_out;
-    EXPECT_LT(std::abs(rep->prediction.peak_force_n.value / t.peak_force_n - 1.0), 0.02);
+    EXPECT_LT(std::abs(rep->prediction.peak_force_n.value / t.peak_force_n - 1.0), peak_tol);
     EXPECT_LT(std::abs(rep->prediction.max_deformation_m.value - t.max_deformation_m), 1e-3);
   }
   EXPECT_EQ(held_out, 4);
+  return choice;
+}
+
+// Seed 2471: the column cuts each of the three paired trials' error 10-40
+// fold, but one trial carries most of the lumped model's error (the drops'
+// t 1.7); on the errors' logarithms t = 5.7. Measured: held-out peaks
+// within 0.27 %, travel 0.21 mm (Model 4: 15.4 %).
+TEST(Model6Pipeline, GeneratorFoamChosenOnTheErrorRatios) {
+  EXPECT_GE(check_generator_choice(2471, 0.02).t_log, 2.0);
+}
+
+// Seed 2485: force 315 -> 62 noise SDs with per-trial ratios 1.2-4.7 (both
+// channels in one number: t = 1.5, on the logarithms 1.9), travel 44 -> 2.9
+// noise SDs, cut 8-16 fold in every trial (on the logarithms t = 10.3).
+// Measured: held-out peaks within 2.72 %, travel 0.34 mm (Model 4: 27.6 %).
+TEST(Model6Pipeline, GeneratorFoamChosenOnTheTravelAlone) {
+  const diagnosis::HeldOutChoice c = check_generator_choice(2485, 0.03);
+  EXPECT_LT(c.t_log, 2.0);
+  EXPECT_NE(c.evidence.find("impactor travel alone"), std::string::npos) << c.evidence;
 }
 
 TEST(Model6Pipeline, ContinuumC1FinalModelIsModel6) {
