@@ -1,5 +1,7 @@
 #include "pipeline/outputs.h"
 
+#include <fmt/format.h>
+
 #include <cmath>
 #include <filesystem>
 
@@ -78,15 +80,38 @@ void add_series(report::OutputSet& out, const std::string& prefix, const std::ve
 
 }  // namespace
 
+std::vector<std::string> session_caveats(const SessionState& state) {
+  std::vector<std::string> out;
+  if (!state.loop) return out;
+  const double gain = state.loop->plate_correction.gain;
+  if (gain == 1.0 || !(gain > 0.0)) return out;
+  // Impulse against momentum reads the product of the plate's gain and the
+  // impactor's mass: the forces were divided by the gain, and a declared
+  // mass off by the same factor explains the record as well. Then the
+  // plate was right, and every force (and the stiffnesses fitted to them)
+  // is off by 1 / gain.
+  const double declared_kg = state.session.manifest.impactor.mass_kg;
+  out.push_back(fmt::format(
+      "every force here was divided by the plate gain {:.4g} that closing the loop found; an impactor of {:.2f} kg, "
+      "where the manifest declares {:.2f} kg, explains the plate's impulse as well (the two cannot be told apart): "
+      "if the mass is the cause, these forces, peaks and stiffnesses are {:.1f} % too {}; weigh the impactor or "
+      "check the plate's calibration",
+      gain, gain * declared_kg, declared_kg, 100.0 * std::abs(1.0 / gain - 1.0), gain < 1.0 ? "high" : "low"));
+  return out;
+}
+
 void add_fit_outputs(report::OutputSet& out, const std::string& prefix, const fitting::FitResult& fit,
                      const SessionState& state, const std::string& label) {
-  out.add(prefix + "fit.json", report::fit_json(fit, state.session.manifest.impactor.mass_kg, label));
+  fitting::FitResult shown = fit;
+  for (std::string& w : session_caveats(state)) shown.warnings.push_back(std::move(w));
+  out.add(prefix + "fit.json", report::fit_json(shown, state.session.manifest.impactor.mass_kg, label));
   add_series(out, prefix, fit.trials, state);
 }
 
 void add_model6_outputs(report::OutputSet& out, const std::string& prefix, const SessionState& state) {
   if (!state.model6 || !state.model6->fit) return;
-  const Model6Stage& m6 = *state.model6;
+  Model6Stage m6 = *state.model6;
+  for (std::string& w : session_caveats(state)) m6.fit->warnings.push_back(std::move(w));
   report::Model6Choice choice;
   choice.rival = m6.rival;
   choice.chosen = m6.chosen;
@@ -177,6 +202,8 @@ void add_run_outputs(report::OutputSet& out, const SessionState& state) {
       rep.residual_forms.push_back(std::move(f));
     }
   }
+  if (rep.final_fit)
+    for (std::string& w : session_caveats(state)) rep.final_fit->warnings.push_back(std::move(w));
   rep.notes = state.all_notes();
   out.add("report.html", report::session_report_html(rep));
 }

@@ -32,9 +32,16 @@ report::TrialSource trial_source(const SessionState& state, std::size_t i);
 // grf.mot, and summary.csv (the paper's Table 1 of the session).
 void add_trial_outputs(report::OutputSet& out, const SessionState& state);
 
-// fit.json and the measured-vs-simulated series of every trial, under
-// `prefix` ("" or "fits/model3/"); `label` names the fit in the file
-// (its model name, or "closed_loop").
+// What every fit of the session stands on that the fit itself does not
+// say, for each fit.json's warnings and the report: a plate gain closing
+// the loop divided out of every force, which a wrong declared impactor
+// mass explains as well (then every force and stiffness is off by 1 / gain).
+std::vector<std::string> session_caveats(const SessionState& state);
+
+// fit.json (with the session's caveats among its warnings) and the
+// measured-vs-simulated series of every trial, under `prefix` ("" or
+// "fits/model3/"); `label` names the fit in the file (its model name, or
+// "closed_loop").
 void add_fit_outputs(report::OutputSet& out, const std::string& prefix, const fitting::FitResult& fit,
                      const SessionState& state, const std::string& label = "");
 

@@ -20,6 +20,7 @@
 #include <sstream>
 
 #include "capture/io.h"
+#include "pipeline/outputs.h"
 #include "pipeline/pipeline.h"
 #include "pipeline/wiring.h"
 #include "core/error.h"
@@ -185,6 +186,36 @@ TEST(InstrumentFaults, WrongDeclaredMassIsNamedAsGainOrMass) {
   // The plate reads the true 24 kg: as a gain, 24 / 30; as a mass, 24 kg.
   EXPECT_NEAR(estimate(*e, "gain"), 0.8, 0.01) << r.reasons();
   EXPECT_NEAR(estimate(*e, "impactor_mass_if_gain_is_1_kg"), 24.0, 0.3) << r.reasons();
+}
+
+// The gain the loop divides out of every force could equally be the
+// declared mass: every fit.json the run writes says so, with the mass and
+// how far every force and stiffness is off if the mass is the cause (the
+// true 24 kg declared as 30: gain 0.8, forces 25 % too high).
+TEST(InstrumentFaults, WrongDeclaredMassCaveatTravelsWithEveryFit) {
+  const pipeline::SessionState state =
+      pipeline::build(lab_session(11, [](synth::SynthOptions& o) { o.faults.declared_mass_kg = 30.0; }));
+  const std::vector<std::string> caveats = pipeline::session_caveats(state);
+  ASSERT_EQ(caveats.size(), 1u);
+  const std::string& c = caveats.front();
+  EXPECT_TRUE(contains(c, "where the manifest declares 30.00 kg")) << c;
+  const auto at = c.find("an impactor of ");
+  ASSERT_NE(at, std::string::npos) << c;
+  EXPECT_NEAR(std::stod(c.substr(at + 15)), 24.0, 0.3) << c;
+  const auto pct = c.find(" % too high");
+  ASSERT_NE(pct, std::string::npos) << c;
+  EXPECT_NEAR(std::stod(c.substr(c.rfind(' ', pct - 1) + 1)), 25.0, 1.5) << c;
+  report::OutputSet out;
+  pipeline::add_run_outputs(out, state);
+  int files = 0;
+  for (const auto& [name, text] : out.files()) {
+    if (name.size() < 8 || name.compare(name.size() - 8, 8, "fit.json") != 0) continue;
+    ++files;
+    const nlohmann::json fj = nlohmann::json::parse(text);
+    const auto& w = fj["warnings"];
+    EXPECT_NE(std::find(w.begin(), w.end(), c), w.end()) << name;
+  }
+  EXPECT_GE(files, 3);
 }
 
 // ---- Manifest plausibility ------------------------------------------------------
