@@ -548,6 +548,8 @@ struct OrderStageOptions {
   double min_rate_per_trial = 0.01;           // 1 % stiffness per trial
   double scale_sd_floor = 0.003;              // the scale's own precision (model misfit at one speed)
   double max_order_speed_correlation = 0.9;
+  double min_scale = 0.25, max_scale = 4.0;  // the bracket each trial's scale is sought in
+  int bisection_steps = 30;                   // on the scale's logarithm within it
 };
 
 struct OrderDiagnosis {
@@ -572,6 +574,15 @@ fitting::MatParams scaled_stiffness(fitting::MatParams params, double scale);
 // trials in recording order (rejected ones skipped); fit: one model of the
 // mat fitted to them (its model and params are used).
 OrderDiagnosis diagnose_order(const std::vector<fitting::TrialData>& trials, const fitting::FitResult& fit,
+                              const OrderStageOptions& options = {});
+
+// The same with the model given as its mismatch with a trial when every
+// stiffness is `scale` times the model's: zero at the trial's own scale,
+// growing with the scale (the lumped models: simulated less measured peak
+// force; NaN when it cannot be simulated; called from two threads at once):
+// any model of the mat, Model 6 included.
+using ScaleMismatch = std::function<double(const fitting::TrialData& trial, double scale)>;
+OrderDiagnosis diagnose_order(const std::vector<fitting::TrialData>& trials, const ScaleMismatch& mismatch,
                               const OrderStageOptions& options = {});
 
 // ---- Table mode -------------------------------------------------------------

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <limits>
 
+#include "core/parallel.h"
 #include "diagnosis/diagnosis.h"
 #include "diagnosis/internal.h"
 #include "trial/trial.h"
@@ -35,18 +36,17 @@ double scaled_peak_n(const fitting::FitResult& fit, const fitting::TrialData& d,
   }
 }
 
-// The stiffness scale that brings the model's peak force to the trial's
-// measured one (bisection on its logarithm within 1/4..4); NaN when the
-// bracket does not hold it.
-double stiffness_scale(const fitting::FitResult& fit, const fitting::TrialData& d) {
+// The stiffness scale at which the model matches the trial (`mismatch`
+// crosses zero: bisection on the scale's logarithm within the options'
+// bracket); NaN when the bracket does not hold it.
+double stiffness_scale(const ScaleMismatch& mismatch, const fitting::TrialData& d, const OrderStageOptions& o) {
   if (d.grf_n.size() == 0 || !(d.impact_velocity_m_s > 0.0)) return kNaN;
-  const double target = d.grf_n.maxCoeff();
-  double lo = std::log(0.25), hi = std::log(4.0);
-  const double f_lo = scaled_peak_n(fit, d, std::exp(lo)) - target, f_hi = scaled_peak_n(fit, d, std::exp(hi)) - target;
-  if (!(f_lo < 0.0 && f_hi > 0.0)) return kNaN;  // the peak grows with the stiffness
-  for (int it = 0; it < 30; ++it) {
+  double lo = std::log(o.min_scale), hi = std::log(o.max_scale);
+  const double f_lo = mismatch(d, std::exp(lo)), f_hi = mismatch(d, std::exp(hi));
+  if (!(f_lo < 0.0 && f_hi > 0.0)) return kNaN;
+  for (int it = 0; it < o.bisection_steps; ++it) {
     const double mid = 0.5 * (lo + hi);
-    const double f = scaled_peak_n(fit, d, std::exp(mid)) - target;
+    const double f = mismatch(d, std::exp(mid));
     if (!std::isfinite(f)) return kNaN;
     (f < 0.0 ? lo : hi) = mid;
   }
@@ -81,12 +81,28 @@ fitting::MatParams scaled_stiffness(fitting::MatParams p, double scale) {
 // See diagnosis.h.
 OrderDiagnosis diagnose_order(const std::vector<fitting::TrialData>& trials, const fitting::FitResult& fit,
                               const OrderStageOptions& o) {
+  // The peak grows with the stiffness.
+  const ScaleMismatch peak = [&](const fitting::TrialData& d, double scale) {
+    return d.grf_n.size() > 0 ? scaled_peak_n(fit, d, scale) - d.grf_n.maxCoeff()
+                              : std::numeric_limits<double>::quiet_NaN();
+  };
+  return diagnose_order(trials, peak, o);
+}
+
+OrderDiagnosis diagnose_order(const std::vector<fitting::TrialData>& trials, const ScaleMismatch& mismatch,
+                              const OrderStageOptions& o) {
   OrderDiagnosis out;
+  // Each trial's scale (the simulations of one trial after another: on two
+  // threads, a trial each).
+  std::vector<double> scale(trials.size(), std::numeric_limits<double>::quiet_NaN());
+  parallel_for(trials.size(), 2, [&](std::size_t k) {
+    if (trials[k].accepted) scale[k] = stiffness_scale(mismatch, trials[k], o);
+  });
   std::vector<double> order, speed, log_scale;
   for (std::size_t k = 0; k < trials.size(); ++k) {
     const fitting::TrialData& d = trials[k];
     if (!d.accepted) continue;
-    const double s = stiffness_scale(fit, d);
+    const double s = scale[k];
     out.ids.push_back(d.id);
     out.stiffness_scale.push_back(s);
     if (!std::isfinite(s)) continue;

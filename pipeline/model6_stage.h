@@ -120,6 +120,15 @@ void start_model6_early(const SessionState& state, EarlyModel6& early, const fit
 // again.
 void consider_model6(SessionState& state, EarlyModel6* early = nullptr);
 
+// With Model 6 chosen and no change of the mat between trials named on the
+// lumped model: the same test (diagnosis::diagnose_order) on Model 6, each
+// trial's stiffness scale being the factor on every foam stress that
+// brings Model 6's peak to the trial's. When the mat changes, the effect
+// joins the loop's and each held-out trial is predicted with the training
+// trial's column times its trend scale (no interval), as for a lumped
+// final model.
+void judge_changing_mat_on_model6(SessionState& state);
+
 // With Model 6 chosen: each trial's clock offset from the contact Model 6
 // places on the force clock (the onset estimate kept beside it), its SE
 // widened by Model 6's own misfit when Model 6 does not reach the noise,

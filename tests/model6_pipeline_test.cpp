@@ -229,6 +229,7 @@ diagnosis::HeldOutChoice check_generator_choice(std::uint64_t seed, double peak_
   }
   const diagnosis::HeldOutChoice& choice = *state.model6->choice;
   EXPECT_LT(choice.t, 2.0) << state.model6->reason;
+  if (state.loop) EXPECT_EQ(state.loop->find("mat_change_between_trials"), nullptr);
   if (state.final_label() != "model6") {
     ADD_FAILURE() << "final model " << state.final_label() << ": " << state.model6->reason;
     return choice;
@@ -267,6 +268,44 @@ TEST(Model6Pipeline, GeneratorFoamChosenOnTheTravelAlone) {
   const diagnosis::HeldOutChoice c = check_generator_choice(2485, 0.03);
   EXPECT_LT(c.t_log, 2.0);
   EXPECT_NE(c.evidence.find("impactor travel alone"), std::string::npos) << c.evidence;
+}
+
+// A foam losing 3 % of its stiffness per trial, recorded out of speed order
+// (seed 2510: 5.61, 5.51, 4.48, 4.52, 5.98 m/s): the loop's test on the
+// lumped model reads that model's misfit with speed (scales 1.13-1.92,
+// +3.0 +- 1.3 % per trial, not named), so the change is judged again on
+// Model 6, each trial's scale the factor on every foam stress that matches
+// its largest travel. Asserted: mat_change_between_trials named with a rate
+// within 0.5 % of -3 % per trial (measured -2.8 +- 0.2 %), the held-out
+// trials predicted with their trend scales (their peaks within 2.5 % of the
+// truth, measured 0.1-2.1 %; 2.7 % unscaled) and every clock offset within
+// 0.3 ms (each placed by the column at the trial's own scale: measured
+// 0.03-0.27 ms; 0.83 ms unscaled). The clean foams of the two tests above
+// name no change.
+TEST(Model6Pipeline, GeneratorFoamSofteningIsJudgedOnModel6) {
+  synth::SynthOptions o = synth::foam_world_options(2510);
+  o.faults.softening_per_trial = 0.03;
+  const synth::SyntheticSession syn = synth::make_session(o);
+  const pipeline::SessionState state = pipeline::build(syn.session);
+  ASSERT_EQ(state.final_label(), "model6") << (state.model6 ? state.model6->reason : "");
+  ASSERT_TRUE(state.loop);
+  const diagnosis::Effect* e = state.loop->find("mat_change_between_trials");
+  ASSERT_NE(e, nullptr) << state.loop->report();
+  double rate = std::numeric_limits<double>::quiet_NaN();
+  for (const auto& [k, v] : e->estimate)
+    if (k == "rate_per_trial") rate = v;
+  EXPECT_NEAR(rate, -0.03, 0.005) << e->evidence;
+  const fitting::Model6FitResult& fit = *state.final_model6();
+  for (const auto& t : syn.truth.trials) {
+    SCOPED_TRACE(t.id);
+    const auto rep = std::find_if(fit.trials.begin(), fit.trials.end(), [&](const auto& r) { return r.id == t.id; });
+    ASSERT_NE(rep, fit.trials.end());
+    if (!rep->train) EXPECT_LT(std::abs(rep->simulated.peak_force_n / t.peak_force_n - 1.0), 0.025);
+    const auto st = std::find_if(state.trials.begin(), state.trials.end(),
+                                 [&](const auto& s) { return s.result.id == t.id; });
+    ASSERT_NE(st, state.trials.end());
+    EXPECT_LT(std::abs(st->result.video_offset_s - t.video_offset_s), 3e-4);
+  }
 }
 
 TEST(Model6Pipeline, ContinuumC1FinalModelIsModel6) {
