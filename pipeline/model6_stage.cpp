@@ -134,6 +134,118 @@ void start_model6_early(const SessionState& state, EarlyModel6& early, const fit
   early.start(std::move(data), std::move(options));
 }
 
+namespace {
+
+// Every elastic stress of both foams times `scale` (the plateau, modulus,
+// hardening and densification stresses; the memory's g_i are shares of the
+// elastic stress and follow it; the viscosity, a damping, does not): the
+// same column made uniformly softer or stiffer.
+fitting::Model6Params scaled_foams(fitting::Model6Params p, double scale) {
+  for (fitting::FoamLaw* law : {&p.top, &p.base}) {
+    law->plateau_pa *= scale, law->modulus_pa *= scale;
+    law->hardening_pa *= scale, law->densification_pa *= scale;
+  }
+  return p;
+}
+
+// See consider_model6 (model6_stage.h): the change between trials judged
+// again on Model 6's fit in `m6`, before it is judged against the lumped
+// model.
+void judge_changing_mat(SessionState& state, Model6Stage& m6) {
+  if (!state.loop || !m6.fit) return;
+  if (state.loop->find("mat_change_between_trials")) return;
+  fitting::Model6FitResult& fit = *m6.fit;
+  if (fit.train_ids.size() != 1) return;
+  const fitting::Model6Params params = fit.params;
+  const fitting::Model6Geometry geometry = m6.options.geometry;
+  // The mismatch: measured less simulated largest face travel, which falls
+  // as the column stiffens (its peak force does not always rise: a column
+  // much softer bottoms out in densification and peaks higher again).
+  const diagnosis::ScaleMismatch mismatch = [&](const fitting::TrialData& d, double scale) {
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    double measured = -1.0;
+    for (Eigen::Index i = 0; i < d.impactor_m.size(); ++i)
+      if (std::isfinite(d.impactor_m[i])) measured = std::max(measured, d.impactor_m[i]);
+    if (!(measured > 0.0)) return nan;
+    fitting::Impact imp;
+    imp.mass_kg = d.impactor_mass_kg;
+    imp.velocity_m_s = d.impact_velocity_m_s;
+    imp.gravity_m_s2 = d.gravity_m_s2;
+    // To past the deepest point (30-60 ms after contact on a landing mat)
+    // on the column's own largest step: 0.1 s.
+    imp.output_dt_s = geometry.max_step_s;
+    imp.duration_s = 0.1;
+    try {
+      const fitting::Simulation sim = fitting::simulate_model6(scaled_foams(params, scale), geometry, imp);
+      return sim.impactor_m.size() > 0 ? measured - sim.impactor_m.maxCoeff() : nan;
+    } catch (const std::exception&) {
+      return nan;
+    }
+  };
+  // In recording order, as the loop's own test on the lumped model; that
+  // one reads the lumped model's misfit with speed, which on a foam is far
+  // larger than a few per cent of stiffness per trial.
+  diagnosis::OrderStageOptions oo;
+  oo.min_scale = 0.5, oo.max_scale = 2.0;
+  oo.bisection_steps = 14;  // the scale to 0.01 %, against the regression's 0.3 % floor
+  const diagnosis::OrderDiagnosis od = diagnosis::diagnose_order(state.fit_data, mismatch, oo);
+  if (!od.changed) {
+    for (const auto& r : od.rejected)
+      state.loop->notes.push_back("between trials, judged again on Model 6 (the foam column): " + r.reason);
+    for (const auto& n : od.notes) state.loop->notes.push_back(n + " (on Model 6, the foam column)");
+    return;
+  }
+  auto& rejected = state.loop->rejected;
+  std::erase_if(rejected, [](const diagnosis::Rejected& r) { return r.name == "mat_change_between_trials"; });
+  for (diagnosis::Effect e : od.effects) {
+    e.evidence = "judged on Model 6 (the foam column; the lumped model's misfit with speed hid it): " + e.evidence;
+    state.loop->effects.push_back(std::move(e));
+  }
+  state.loop->trial_stiffness_scale.clear();
+  for (std::size_t i = 0; i < od.ids.size(); ++i) state.loop->trial_stiffness_scale.emplace_back(od.ids[i], od.trend_scale[i]);
+  // Each held-out trial predicted with the training trial's column times
+  // the stiffness scale the recording-order trend fitted without it gives.
+  auto scale_of = [&](const std::string& id, const std::vector<double>& scales) {
+    for (std::size_t i = 0; i < od.ids.size(); ++i)
+      if (od.ids[i] == id) return scales[i];
+    return std::numeric_limits<double>::quiet_NaN();
+  };
+  const double train_scale = scale_of(fit.train_ids.front(), od.trend_scale);
+  const double train_own = scale_of(fit.train_ids.front(), od.stiffness_scale);
+  if (!std::isfinite(train_scale)) return;
+  std::string used;
+  for (fitting::TrialReport& rep : fit.trials) {
+    const double s = scale_of(rep.id, od.trend_scale) / train_scale;
+    if (rep.train || !std::isfinite(s)) continue;
+    for (const fitting::TrialData& d : state.fit_data) {
+      if (d.id != rep.id) continue;
+      try {
+        rep = fitting::predict_model6(d, scaled_foams(params, s), m6.options);
+        // The trial's clock offset is its own measurement: its contact is
+        // placed by the column at the trial's own scale (the one that
+        // matches its travel), not the trend's prediction.
+        const double own = scale_of(rep.id, od.stiffness_scale) / train_own;
+        if (std::isfinite(own)) {
+          const fitting::TrialReport at_own = fitting::predict_model6(d, scaled_foams(params, own), m6.options);
+          rep.contact_shift_s = at_own.contact_shift_s;
+          rep.contact_shift_se_s = at_own.contact_shift_se_s;
+        }
+        used += fmt::format("{}{} x{:.3f}", used.empty() ? "" : ", ", rep.id, s);
+      } catch (const std::exception& e) {
+        state.notes.push_back(fmt::format("trial {}: not predicted with its stiffness scale: {}", rep.id, e.what()));
+      }
+    }
+  }
+  if (used.empty()) return;
+  fit.warnings.push_back(fmt::format(
+      "the mat changes between trials: the parameters are the training trial's ({}) column; each other trial is "
+      "predicted with every foam stress scaled as the recording-order trend fitted without it gives ({}); those "
+      "predictions carry no interval",
+      fit.train_ids.front(), used));
+}
+
+}  // namespace
+
 void consider_model6(SessionState& state, EarlyModel6* early) {
   state.model6.reset();
   if (!final_model_short_of_noise(state)) return;
@@ -155,6 +267,7 @@ void consider_model6(SessionState& state, EarlyModel6* early) {
     state.model6 = std::move(stage);
     return;
   }
+  judge_changing_mat(state, stage);
   diagnosis::MatStageOptions mo;
   mo.fit = state.baseline_fit_options;
   stage.choice = diagnosis::choose_by_held_out(data, stage.rival, rival.trials, "model6", stage.fit->trials, mo);
@@ -246,116 +359,6 @@ void calibrate_offset_ses(SessionState& state, double common_s) {
 }
 
 }  // namespace
-
-namespace {
-
-// Every elastic stress of both foams times `scale` (the plateau, modulus,
-// hardening and densification stresses; the memory's g_i are shares of the
-// elastic stress and follow it; the viscosity, a damping, does not): the
-// same column made uniformly softer or stiffer.
-fitting::Model6Params scaled_foams(fitting::Model6Params p, double scale) {
-  for (fitting::FoamLaw* law : {&p.top, &p.base}) {
-    law->plateau_pa *= scale, law->modulus_pa *= scale;
-    law->hardening_pa *= scale, law->densification_pa *= scale;
-  }
-  return p;
-}
-
-}  // namespace
-
-void judge_changing_mat_on_model6(SessionState& state) {
-  if (!state.loop || !state.model6 || !state.model6->chosen || !state.model6->fit) return;
-  if (state.loop->find("mat_change_between_trials")) return;
-  Model6Stage& m6 = *state.model6;
-  fitting::Model6FitResult& fit = *m6.fit;
-  if (fit.train_ids.size() != 1) return;
-  const fitting::Model6Params params = fit.params;
-  const fitting::Model6Geometry geometry = m6.options.geometry;
-  // The mismatch: measured less simulated largest face travel, which falls
-  // as the column stiffens (its peak force does not always rise: a column
-  // much softer bottoms out in densification and peaks higher again).
-  const diagnosis::ScaleMismatch mismatch = [&](const fitting::TrialData& d, double scale) {
-    const double nan = std::numeric_limits<double>::quiet_NaN();
-    double measured = -1.0;
-    for (Eigen::Index i = 0; i < d.impactor_m.size(); ++i)
-      if (std::isfinite(d.impactor_m[i])) measured = std::max(measured, d.impactor_m[i]);
-    if (!(measured > 0.0)) return nan;
-    fitting::Impact imp;
-    imp.mass_kg = d.impactor_mass_kg;
-    imp.velocity_m_s = d.impact_velocity_m_s;
-    imp.gravity_m_s2 = d.gravity_m_s2;
-    // To past the deepest point (30-60 ms after contact on a landing mat)
-    // on the column's own largest step: 0.1 s.
-    imp.output_dt_s = geometry.max_step_s;
-    imp.duration_s = 0.1;
-    try {
-      const fitting::Simulation sim = fitting::simulate_model6(scaled_foams(params, scale), geometry, imp);
-      return sim.impactor_m.size() > 0 ? measured - sim.impactor_m.maxCoeff() : nan;
-    } catch (const std::exception&) {
-      return nan;
-    }
-  };
-  // In recording order, as the loop's own test on the lumped model; that
-  // one reads the lumped model's misfit with speed, which on a foam is far
-  // larger than a few per cent of stiffness per trial.
-  diagnosis::OrderStageOptions oo;
-  oo.min_scale = 0.5, oo.max_scale = 2.0;
-  oo.bisection_steps = 14;  // the scale to 0.01 %, against the regression's 0.3 % floor
-  const diagnosis::OrderDiagnosis od = diagnosis::diagnose_order(state.fit_data, mismatch, oo);
-  if (!od.changed) {
-    for (const auto& r : od.rejected)
-      state.loop->notes.push_back("between trials, judged again on Model 6 (the final model): " + r.reason);
-    for (const auto& n : od.notes) state.loop->notes.push_back(n + " (on Model 6, the final model)");
-    return;
-  }
-  auto& rejected = state.loop->rejected;
-  std::erase_if(rejected, [](const diagnosis::Rejected& r) { return r.name == "mat_change_between_trials"; });
-  for (diagnosis::Effect e : od.effects) {
-    e.evidence = "judged on Model 6 (the final model; the lumped model's misfit with speed hid it): " + e.evidence;
-    state.loop->effects.push_back(std::move(e));
-  }
-  state.loop->trial_stiffness_scale.clear();
-  for (std::size_t i = 0; i < od.ids.size(); ++i) state.loop->trial_stiffness_scale.emplace_back(od.ids[i], od.trend_scale[i]);
-  // Each held-out trial predicted with the training trial's column times
-  // the stiffness scale the recording-order trend fitted without it gives.
-  auto scale_of = [&](const std::string& id, const std::vector<double>& scales) {
-    for (std::size_t i = 0; i < od.ids.size(); ++i)
-      if (od.ids[i] == id) return scales[i];
-    return std::numeric_limits<double>::quiet_NaN();
-  };
-  const double train_scale = scale_of(fit.train_ids.front(), od.trend_scale);
-  const double train_own = scale_of(fit.train_ids.front(), od.stiffness_scale);
-  if (!std::isfinite(train_scale)) return;
-  std::string used;
-  for (fitting::TrialReport& rep : fit.trials) {
-    const double s = scale_of(rep.id, od.trend_scale) / train_scale;
-    if (rep.train || !std::isfinite(s)) continue;
-    for (const fitting::TrialData& d : state.fit_data) {
-      if (d.id != rep.id) continue;
-      try {
-        rep = fitting::predict_model6(d, scaled_foams(params, s), m6.options);
-        // The trial's clock offset is its own measurement: its contact is
-        // placed by the column at the trial's own scale (the one that
-        // matches its travel), not the trend's prediction.
-        const double own = scale_of(rep.id, od.stiffness_scale) / train_own;
-        if (std::isfinite(own)) {
-          const fitting::TrialReport at_own = fitting::predict_model6(d, scaled_foams(params, own), m6.options);
-          rep.contact_shift_s = at_own.contact_shift_s;
-          rep.contact_shift_se_s = at_own.contact_shift_se_s;
-        }
-        used += fmt::format("{}{} x{:.3f}", used.empty() ? "" : ", ", rep.id, s);
-      } catch (const std::exception& e) {
-        state.notes.push_back(fmt::format("trial {}: not predicted with its stiffness scale: {}", rep.id, e.what()));
-      }
-    }
-  }
-  if (used.empty()) return;
-  fit.warnings.push_back(fmt::format(
-      "the mat changes between trials: the parameters are the training trial's ({}) column; each other trial is "
-      "predicted with every foam stress scaled as the recording-order trend fitted without it gives ({}); those "
-      "predictions carry no interval",
-      fit.train_ids.front(), used));
-}
 
 void apply_model6_offsets(SessionState& state) {
   if (!state.model6 || !state.model6->chosen || !state.model6->fit) return;

@@ -117,17 +117,15 @@ void start_model6_early(const SessionState& state, EarlyModel6& early, const fit
 // Fits Model 6 when the final lumped model does not reach the noise and
 // judges it against that model (state.model6); a failed fit is a note.
 // An early fit on the same inputs (`early`) is taken instead of fitting
-// again.
-void consider_model6(SessionState& state, EarlyModel6* early = nullptr);
-
-// With Model 6 chosen and no change of the mat between trials named on the
-// lumped model: the same test (diagnosis::diagnose_order) on Model 6, each
+// again. Before the judgement, when the loop named no change of the mat
+// between trials on the lumped model (whose misfit with speed can hide
+// it), the same test (diagnosis::diagnose_order) runs on Model 6, each
 // trial's stiffness scale being the factor on every foam stress that
-// brings Model 6's peak to the trial's. When the mat changes, the effect
-// joins the loop's and each held-out trial is predicted with the training
-// trial's column times its trend scale (no interval), as for a lumped
-// final model.
-void judge_changing_mat_on_model6(SessionState& state);
+// brings the column's largest travel to the trial's. When the mat changes,
+// the effect joins the loop's and each held-out trial is predicted with the
+// training trial's column times its trend scale (no interval; its contact
+// at the trial's own scale), as for a lumped final model.
+void consider_model6(SessionState& state, EarlyModel6* early = nullptr);
 
 // With Model 6 chosen: each trial's clock offset from the contact Model 6
 // places on the force clock (the onset estimate kept beside it), its SE

@@ -414,7 +414,6 @@ void close_loop(SessionState& state) {
   predict_changing_mat(state);
   // A final lumped model short of the noise: Model 6 may replace it.
   consider_model6(state, &early);
-  judge_changing_mat_on_model6(state);
   // Each trial's clock offset from the contact instant the final mat model
   // placed on the force clock, replacing the plate-onset estimate, which
   // reads late on a layered mat.

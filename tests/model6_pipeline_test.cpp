@@ -274,8 +274,8 @@ TEST(Model6Pipeline, GeneratorFoamChosenOnTheTravelAlone) {
 // (seed 2510: 5.61, 5.51, 4.48, 4.52, 5.98 m/s): the loop's test on the
 // lumped model reads that model's misfit with speed (scales 1.13-1.92,
 // +3.0 +- 1.3 % per trial, not named), so the change is judged again on
-// Model 6, each trial's scale the factor on every foam stress that matches
-// its largest travel. Asserted: mat_change_between_trials named with a rate
+// Model 6 before the held-out choice, each trial's scale the factor on
+// every foam stress that matches its largest travel. Asserted: mat_change_between_trials named with a rate
 // within 0.5 % of -3 % per trial (measured -2.8 +- 0.2 %), the held-out
 // trials predicted with their trend scales (their peaks within 2.5 % of the
 // truth, measured 0.1-2.1 %; 2.7 % unscaled) and every clock offset within
