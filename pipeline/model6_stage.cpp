@@ -13,6 +13,7 @@
 #include "fitting/model6_calibration.h"
 
 #include "pipeline/pipeline.h"
+#include "pipeline/wiring.h"
 
 namespace dropfit::pipeline {
 
@@ -210,32 +211,24 @@ void judge_changing_mat(SessionState& state, Model6Stage& m6) {
       if (od.ids[i] == id) return scales[i];
     return std::numeric_limits<double>::quiet_NaN();
   };
-  const double train_scale = scale_of(fit.train_ids.front(), od.trend_scale);
   const double train_own = scale_of(fit.train_ids.front(), od.stiffness_scale);
-  if (!std::isfinite(train_scale)) return;
-  std::string used;
-  for (fitting::TrialReport& rep : fit.trials) {
-    const double s = scale_of(rep.id, od.trend_scale) / train_scale;
-    if (rep.train || !std::isfinite(s)) continue;
-    for (const fitting::TrialData& d : state.fit_data) {
-      if (d.id != rep.id) continue;
-      try {
-        rep = fitting::predict_model6(d, scaled_foams(params, s), m6.options);
+  const std::string used = predict_with_stiffness_scales(
+      fit.trials, state.fit_data, fit.train_ids.front(),
+      [&](const std::string& id) { return scale_of(id, od.trend_scale); },
+      [&](const fitting::TrialData& d, double s) {
+        fitting::TrialReport rep = fitting::predict_model6(d, scaled_foams(params, s), m6.options);
         // The trial's clock offset is its own measurement: its contact is
         // placed by the column at the trial's own scale (the one that
         // matches its travel), not the trend's prediction.
-        const double own = scale_of(rep.id, od.stiffness_scale) / train_own;
+        const double own = scale_of(d.id, od.stiffness_scale) / train_own;
         if (std::isfinite(own)) {
           const fitting::TrialReport at_own = fitting::predict_model6(d, scaled_foams(params, own), m6.options);
           rep.contact_shift_s = at_own.contact_shift_s;
           rep.contact_shift_se_s = at_own.contact_shift_se_s;
         }
-        used += fmt::format("{}{} x{:.3f}", used.empty() ? "" : ", ", rep.id, s);
-      } catch (const std::exception& e) {
-        state.notes.push_back(fmt::format("trial {}: not predicted with its stiffness scale: {}", rep.id, e.what()));
-      }
-    }
-  }
+        return rep;
+      },
+      state.notes);
   if (used.empty()) return;
   fit.warnings.push_back(fmt::format(
       "the mat changes between trials: the parameters are the training trial's ({}) column; each other trial is "

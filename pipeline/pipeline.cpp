@@ -468,28 +468,18 @@ void predict_changing_mat(SessionState& state) {
       if (k == id) return s;
     return std::numeric_limits<double>::quiet_NaN();
   };
-  const double train_scale = scale_of(final_fit->train_ids.front());
-  if (!std::isfinite(train_scale)) return;
   // The mat effects are not judged on a changing mat, so the final lumped
   // model is the baseline's (on the plate-corrected force when corrected).
   fitting::FitOptions options = state.baseline_fit_options;
   options.model = final_fit->model;
   options.force_lowpass_hz = final_fit->force_lowpass_hz;
   fitting::FitResult changed = *final_fit;
-  std::string used;
-  for (fitting::TrialReport& rep : changed.trials) {
-    const double s = scale_of(rep.id) / train_scale;
-    if (rep.train || !std::isfinite(s)) continue;
-    for (const fitting::TrialData& d : state.fit_data) {
-      if (d.id != rep.id) continue;
-      try {
-        rep = fitting::predict(d, diagnosis::scaled_stiffness(final_fit->params, s), options);
-        used += fmt::format("{}{} x{:.3f}", used.empty() ? "" : ", ", rep.id, s);
-      } catch (const std::exception& e) {
-        state.notes.push_back(fmt::format("trial {}: not predicted with its stiffness scale: {}", rep.id, e.what()));
-      }
-    }
-  }
+  const std::string used = predict_with_stiffness_scales(
+      changed.trials, state.fit_data, final_fit->train_ids.front(), scale_of,
+      [&](const fitting::TrialData& d, double s) {
+        return fitting::predict(d, diagnosis::scaled_stiffness(final_fit->params, s), options);
+      },
+      state.notes);
   if (used.empty()) return;
   changed.warnings.push_back(fmt::format(
       "the mat changes between trials: the parameters are the training trial's ({}) mat; each other trial is "

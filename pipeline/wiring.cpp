@@ -200,4 +200,28 @@ fitting::Model5Geometry model5_geometry(const Manifest& manifest) {
   return g;
 }
 
+std::string predict_with_stiffness_scales(
+    std::vector<fitting::TrialReport>& reports, const std::vector<fitting::TrialData>& data,
+    const std::string& train_id, const std::function<double(const std::string& id)>& scale_of,
+    const std::function<fitting::TrialReport(const fitting::TrialData& trial, double scale)>& predict,
+    std::vector<std::string>& notes) {
+  const double train_scale = scale_of(train_id);
+  std::string used;
+  if (!std::isfinite(train_scale)) return used;
+  for (fitting::TrialReport& rep : reports) {
+    const double s = scale_of(rep.id) / train_scale;
+    if (rep.train || !std::isfinite(s)) continue;
+    for (const fitting::TrialData& d : data) {
+      if (d.id != rep.id) continue;
+      try {
+        rep = predict(d, s);
+        used += fmt::format("{}{} x{:.3f}", used.empty() ? "" : ", ", rep.id, s);
+      } catch (const std::exception& e) {
+        notes.push_back(fmt::format("trial {}: not predicted with its stiffness scale: {}", rep.id, e.what()));
+      }
+    }
+  }
+  return used;
+}
+
 }  // namespace dropfit::pipeline

@@ -3,6 +3,7 @@
 // as stage options, the calibration inputs, one trial through the force
 // plate, reconstruction and trial stages, a trial as the fitter sees it.
 // No numerics here (they live in the stages) and no file I/O.
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
@@ -57,6 +58,17 @@ fitting::TrialData fitting_trial(const Manifest& manifest, const trial::TrialRes
 // force clock (its contact_shift_s), with its SE; the plate-onset estimate
 // moves to video_offset_onset_s. Unchanged when the fit has no shift for it.
 void apply_fitted_offset(trial::TrialResult& result, const fitting::FitResult& fit);
+
+// A mat that changes between trials: each held-out report in `reports`
+// replaced by `predict(its trial, scale)`, scale its stiffness scale
+// (`scale_of(id)`, NaN: left as it is) over the training trial's; a
+// trial that cannot be predicted keeps its report and gets a note.
+// Returns the trials predicted ("trial1 x1.085, ..."), empty for none.
+std::string predict_with_stiffness_scales(
+    std::vector<fitting::TrialReport>& reports, const std::vector<fitting::TrialData>& data,
+    const std::string& train_id, const std::function<double(const std::string& id)>& scale_of,
+    const std::function<fitting::TrialReport(const fitting::TrialData& trial, double scale)>& predict,
+    std::vector<std::string>& notes);
 
 // Model 5's geometry from the manifest (mat and impactor footprint).
 fitting::Model5Geometry model5_geometry(const Manifest& manifest);
