@@ -30,6 +30,12 @@ const std::vector<std::string>& free_names() {
 }
 constexpr int kFree = 15;
 constexpr int kExponent = 14;  // the index of log(n - 1)
+// The column's law and its ten elements are not the foam's, so a parameter
+// is the column's effective value, and an interval from the fit's
+// curvature does not hold the foam's own; the predictions carry the
+// intervals, with the column's discrepancy.
+constexpr const char* kEffectiveNote =
+    "the column's effective value, not the foam's: no interval (its predictions carry them)";
 
 // The parameters at u; the densification exponent is options'
 // densification_exponent unless `free_exponent` (then 1 + exp(u[14])).
@@ -802,14 +808,9 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
     e.se = std::exp(u[i]) * log_se[i];
     e.rel_se = e.se / e.value;
     e.identifiable = std::isfinite(log_se[i]) && log_se[i] < 1.0;
-    // No 95 % interval: the column's law and its ten elements are not the
-    // foam's, so a parameter is the column's effective value, and an
-    // interval from the fit's curvature does not hold the foam's own (on
-    // c1 and c2 Wald intervals from the AR(1) error budget held 7 of 26
-    // true values, docs/validation.md). The predictions carry the
-    // intervals, with the column's discrepancy.
-    e.note = e.at_bound ? "the bound, not the data, sets it"
-                        : "the column's effective value, not the foam's: no interval (its predictions carry them)";
+    // No 95 % interval: the column's effective value, not the foam's own
+    // (docs/validation.md: Wald intervals held 7 of 26 true values).
+    e.note = e.at_bound ? "the bound, not the data, sets it" : kEffectiveNote;
     res.estimates.push_back(e);
   }
   // Per channel, the training residual's RMS in noise units.

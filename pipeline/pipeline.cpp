@@ -474,18 +474,14 @@ void predict_changing_mat(SessionState& state) {
   options.model = final_fit->model;
   options.force_lowpass_hz = final_fit->force_lowpass_hz;
   fitting::FitResult changed = *final_fit;
-  const std::string used = predict_with_stiffness_scales(
+  const std::string warning = predict_with_stiffness_scales(
       changed.trials, state.fit_data, final_fit->train_ids.front(), scale_of,
       [&](const fitting::TrialData& d, double s) {
         return fitting::predict(d, diagnosis::scaled_stiffness(final_fit->params, s), options);
       },
-      state.notes);
-  if (used.empty()) return;
-  changed.warnings.push_back(fmt::format(
-      "the mat changes between trials: the parameters are the training trial's ({}) mat; each other trial is "
-      "predicted with every stiffness scaled as the recording-order trend fitted without it gives ({}); those "
-      "predictions carry no interval",
-      final_fit->train_ids.front(), used));
+      "every stiffness", state.notes);
+  if (warning.empty()) return;
+  changed.warnings.push_back(warning);
   state.loop->mat_fit = std::move(changed);
 }
 

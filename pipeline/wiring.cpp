@@ -204,7 +204,7 @@ std::string predict_with_stiffness_scales(
     std::vector<fitting::TrialReport>& reports, const std::vector<fitting::TrialData>& data,
     const std::string& train_id, const std::function<double(const std::string& id)>& scale_of,
     const std::function<fitting::TrialReport(const fitting::TrialData& trial, double scale)>& predict,
-    std::vector<std::string>& notes) {
+    const std::string& scaled, std::vector<std::string>& notes) {
   const double train_scale = scale_of(train_id);
   std::string used;
   if (!std::isfinite(train_scale)) return used;
@@ -221,7 +221,11 @@ std::string predict_with_stiffness_scales(
       }
     }
   }
-  return used;
+  if (used.empty()) return used;
+  return fmt::format(
+      "the mat changes between trials: the parameters are the training trial's ({}); each other trial is predicted "
+      "with {} scaled as the recording-order trend fitted without it gives ({}); those predictions carry no interval",
+      train_id, scaled, used);
 }
 
 }  // namespace dropfit::pipeline

@@ -63,12 +63,13 @@ void apply_fitted_offset(trial::TrialResult& result, const fitting::FitResult& f
 // replaced by `predict(its trial, scale)`, scale its stiffness scale
 // (`scale_of(id)`, NaN: left as it is) over the training trial's; a
 // trial that cannot be predicted keeps its report and gets a note.
-// Returns the trials predicted ("trial1 x1.085, ..."), empty for none.
+// Returns the fit's warning that says so (`scaled`: what the scale
+// multiplies), empty when no trial was predicted.
 std::string predict_with_stiffness_scales(
     std::vector<fitting::TrialReport>& reports, const std::vector<fitting::TrialData>& data,
     const std::string& train_id, const std::function<double(const std::string& id)>& scale_of,
     const std::function<fitting::TrialReport(const fitting::TrialData& trial, double scale)>& predict,
-    std::vector<std::string>& notes);
+    const std::string& scaled, std::vector<std::string>& notes);
 
 // Model 5's geometry from the manifest (mat and impactor footprint).
 fitting::Model5Geometry model5_geometry(const Manifest& manifest);
