@@ -217,7 +217,8 @@ TEST(Model6Pipeline, EarlyFitIsTheFitAfterTheLoopOrNone) {
 // Generator foam-world sessions nobody tuned on, where the loop's lumped
 // model stays far above the noise and Model 6 predicts every held-out trial
 // better, yet the test on the drops of both channels in one number fails:
-// Model 6 must be final (it was not: Model 4 stayed, 15-28 % off).
+// Model 6 must be final (on the combined number alone Model 4 stays final,
+// 15-28 % off).
 // Asserted: Model 6 final, the drops' t below 2, every held-out peak within
 // peak_tol of the truth and travel within 1 mm; each test: what decided.
 diagnosis::HeldOutChoice check_generator_choice(std::uint64_t seed, double peak_tol) {
