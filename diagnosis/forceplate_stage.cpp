@@ -17,7 +17,11 @@ namespace {
 // The samples where the zeroed Fz must equal a known level: the quiet
 // pre-trigger part (0) and, after the contact has settled, windows whose SD
 // is within still_sd_factor noise SDs, at 0 (impactor in the air) or m g
-// (impactor at rest), whichever is nearer.
+// (impactor at rest). The first such window takes the level nearer its
+// mean; each later one keeps the level before it unless its mean jumps from
+// the last window's by more than half of m g (the impactor landed or was
+// lifted), so a drift that grows past half the impactor's weight over the
+// record does not flip the level it is measured against.
 struct Still {
   std::vector<Eigen::Index> index;  // into the trial's samples
   std::vector<double> expected_n;
@@ -43,13 +47,21 @@ Still still_samples(const PlateTrial& t, const ForceplateStageOptions& o) {
   Eigen::Index i = 0;
   while (i < n && t.t_s(i) < start) ++i;
   const double limit = o.still_sd_factor * noise_of(t);
+  auto nearer = [&](double f) { return std::abs(f) <= std::abs(f - weight) ? 0.0 : weight; };
+  bool have_last = false;
+  double last_mean = 0.0, last_level = 0.0;
   for (; i + w <= n; i += w) {
     const Eigen::VectorXd seg = t.fz_n.segment(i, w);
     if (!seg.allFinite()) continue;
     const double mean = seg.mean();
     const double sd = std::sqrt((seg.array() - mean).square().sum() / static_cast<double>(w - 1));
     if (sd > limit) continue;
-    const double level = std::abs(mean) <= std::abs(mean - weight) ? 0.0 : weight;
+    // After a jump, the level nearer the mean less the offset the last
+    // window read (its drift so far).
+    const double level = !have_last                                   ? nearer(mean)
+                         : std::abs(mean - last_mean) <= 0.5 * weight ? last_level
+                                                                      : nearer(mean - (last_mean - last_level));
+    have_last = true, last_mean = mean, last_level = level;
     for (Eigen::Index k = i; k < i + w; ++k) {
       s.index.push_back(k);
       s.expected_n.push_back(level);

@@ -218,6 +218,20 @@ TEST(InstrumentFaults, WrongDeclaredMassCaveatTravelsWithEveryFit) {
   EXPECT_GE(files, 3);
 }
 
+// A drift that grows past half the impactor's weight over the record (40
+// N/s: 200 N by the end of a 5 s record, m g = 235 N): each still window is
+// measured against the level the windows before it held (the impactor is
+// caught), not the nearer of 0 and m g, which flipped the late windows to
+// m g and left "a periodic oscillation" with nothing named. Asserted: the
+// drift named within 1 N/s, nothing left at the plate.
+TEST(InstrumentFaults, LargeBaselineDriftIsNamed) {
+  const Outcome r = run(lab_session(11, [](synth::SynthOptions& o) { o.effects.baseline_drift_n_s = 40.0; }));
+  const diagnosis::Effect* e = effect(r.loop, "baseline_drift");
+  ASSERT_NE(e, nullptr) << r.reasons();
+  EXPECT_NEAR(estimate(*e, "drift_n_s"), 40.0, 1.0) << e->evidence;
+  for (const auto& rem : r.loop.remaining) EXPECT_NE(rem.stage, "forceplate") << rem.name << ": " << rem.description;
+}
+
 // ---- Manifest plausibility ------------------------------------------------------
 
 struct TempDir {
