@@ -652,9 +652,14 @@ void diagnose_force_scale(const std::vector<PlateTrial>& trials, const Forceplat
   const detail::Verdict v = detail::judge(before, after, 0.0, rss0, 0, rss1, 1, static_cast<double>(nr), 0.0,
                                           Criterion::AICc, d);
   const bool stands_out = std::abs(gain - 1.0) > std::max(o.min_scale_error, 3.0 * se);
+  // With two trials the criterion has no degrees of freedom left (AICc
+  // undefined); it cannot veto a gain whose held-out error each trial at
+  // least halves (the other trial's gain predicts it), as in the mat stage.
+  const bool halves = paired_improvement(before, after, d.t_critical, 0.5, 0.0).significant;
+  const bool kept = v.keep() || (v.held_out.significant && halves && !std::isfinite(v.ic.delta));
   const TimeBaseCheck time_base =
       force_time_base(trials, out.impulse_ratios, out.correction, o.impactor_mass_kg, o.gravity_m_s2);
-  if (stands_out && v.keep()) {
+  if (stands_out && kept) {
     Effect e;
     e.stage = "forceplate";
     e.name = "force_scale";

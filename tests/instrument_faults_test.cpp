@@ -218,6 +218,22 @@ TEST(InstrumentFaults, WrongDeclaredMassCaveatTravelsWithEveryFit) {
   EXPECT_GE(files, 3);
 }
 
+// A plate gain seen in two trials only (the others rejected, or never
+// recorded): the information criterion has no degrees of freedom left
+// (AICc undefined on two ratios), and it cannot veto a gain each trial's
+// held-out error at least halves under. Asserted: gain 1.2 named within
+// 0.01 on a two-trial session.
+TEST(InstrumentFaults, PlateGainIsNamedOnTwoTrials) {
+  const Outcome r = run(lab_session(11, [](synth::SynthOptions& o) {
+    o.effects.force_scale = 1.2;
+    o.impact_velocities_m_s = {4.6, 5.8};
+  }));
+  ASSERT_EQ(r.accepted(), 2) << r.reasons();
+  const diagnosis::Effect* e = effect(r.loop, "force_scale");
+  ASSERT_NE(e, nullptr) << r.reasons();
+  EXPECT_NEAR(estimate(*e, "gain"), 1.2, 0.01) << e->evidence;
+}
+
 // A drift that grows past half the impactor's weight over the record (40
 // N/s: 200 N by the end of a 5 s record, m g = 235 N): each still window is
 // measured against the level the windows before it held (the impactor is
