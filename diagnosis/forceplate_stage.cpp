@@ -606,6 +606,20 @@ bool name_force_time_base(const std::vector<PlateTrial>& trials, const TimeBaseC
   return true;
 }
 
+// Impulse ratios that scatter between trials beyond 3 %: no constant gain
+// explains them (left in the stage's remaining structure).
+void note_impulse_scatter(const Eigen::VectorXd& rho, const std::vector<std::string>& ids, ForceplateDiagnosis& out) {
+  const double scatter = detail::sample_sd(rho) / rho.mean();
+  if (!(scatter > 0.03)) return;
+  std::string per_trial;
+  for (Eigen::Index i = 0; i < rho.size(); ++i)
+    per_trial += fmt::format("{}{} {:.3f}", i ? ", " : "", ids[static_cast<std::size_t>(i)], rho(i));
+  out.remaining.push_back({"forceplate", "impulse_scatter",
+                           fmt::format("impulse/momentum scatters by {:.1f} % between trials ({}): no constant gain "
+                                       "explains it",
+                                       100.0 * scatter, per_trial)});
+}
+
 // force_scale (diagnosis.h): the plate's impulse against the video's
 // momentum over trials, with the drift correction found so far.
 void diagnose_force_scale(const std::vector<PlateTrial>& trials, const ForceplateStageOptions& o,
@@ -652,13 +666,10 @@ void diagnose_force_scale(const std::vector<PlateTrial>& trials, const Forceplat
   const detail::Verdict v = detail::judge(before, after, 0.0, rss0, 0, rss1, 1, static_cast<double>(nr), 0.0,
                                           Criterion::AICc, d);
   const bool stands_out = std::abs(gain - 1.0) > std::max(o.min_scale_error, 3.0 * se);
-  // With two trials the criterion has no degrees of freedom left (AICc
-  // undefined); it cannot veto a gain whose held-out error each trial at
-  // least halves (the other trial's gain predicts it), as in the mat stage.
-  const bool halves = paired_improvement(before, after, d.t_critical, 0.5, 0.0).significant;
-  const bool kept = v.keep() || (v.held_out.significant && halves && !std::isfinite(v.ic.delta));
-  const TimeBaseCheck time_base =
-      force_time_base(trials, out.impulse_ratios, out.correction, o.impactor_mass_kg, o.gravity_m_s2);
+  // An undefined criterion (two trials) cannot veto a gain under which
+  // each trial's held-out error at least halves, as in the mat stage.
+  const bool kept = v.keep() || (v.held_out.significant && !std::isfinite(v.ic.delta) &&
+                                 paired_improvement(before, after, d.t_critical, 0.5, 0.0).significant);
   if (stands_out && kept) {
     Effect e;
     e.stage = "forceplate";
@@ -711,6 +722,8 @@ void diagnose_force_scale(const std::vector<PlateTrial>& trials, const Forceplat
                                 "base is not the cause",
                                 fall.ratio, fall.se, fall.n);
     }
+    const TimeBaseCheck time_base =
+        force_time_base(trials, out.impulse_ratios, out.correction, o.impactor_mass_kg, o.gravity_m_s2);
     if (name_force_time_base(trials, time_base, gain, se, e, out)) return;
     out.effects.push_back(std::move(e));
     out.correction.gain = gain;
@@ -721,15 +734,7 @@ void diagnose_force_scale(const std::vector<PlateTrial>& trials, const Forceplat
                             fmt::format("impulse/momentum {:.4f} +- {:.4f}: within max({:.0f} %, 3 SE) of 1", gain, se,
                                         100.0 * o.min_scale_error)});
   }
-  const double scatter = detail::sample_sd(rho) / gain;
-  if (scatter > 0.03) {
-    std::string per_trial;
-    for (Eigen::Index i = 0; i < nr; ++i) per_trial += fmt::format("{}{} {:.3f}", i ? ", " : "", ids[i], rho(i));
-    out.remaining.push_back({"forceplate", "impulse_scatter",
-                             fmt::format("impulse/momentum scatters by {:.1f} % between trials ({}): no constant gain "
-                                         "explains it",
-                                         100.0 * scatter, per_trial)});
-  }
+  note_impulse_scatter(rho, ids, out);
 }
 
 }  // namespace
