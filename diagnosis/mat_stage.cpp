@@ -703,7 +703,7 @@ namespace {
 // factor; at least 3 trials), at least t_critical, with the mean drop at
 // least min_relative of a's mean. Errors in noise SDs are a scale, and the
 // differences' t misses a like factor when one trial carries most of the
-// error (drops of 40, 100 and 240 SDs: t = 1.7).
+// error.
 struct Drop {
   double t = 0.0, t_log = 0.0;
   bool beyond_noise = false;
@@ -717,12 +717,6 @@ Drop paired_drop(const std::vector<double>& a, const std::vector<double>& b, con
   d.beyond_noise = pi.significant || (d.t_log >= options.decision.t_critical && pi.mean_drop > 0.0 &&
                                       pi.mean_drop >= options.decision.min_relative * std::abs(pi.mean_before));
   return d;
-}
-
-double rms(const std::vector<double>& v) {
-  double ss = 0.0;
-  for (double x : v) ss += x * x;
-  return v.empty() ? 0.0 : std::sqrt(ss / static_cast<double>(v.size()));
 }
 
 std::string t_text(const Drop& d) {
@@ -779,7 +773,7 @@ HeldOutChoice choose_by_held_out(const std::vector<fitting::TrialData>& trials, 
   for (int ch = 0; ch < 2; ++ch) {
     const std::vector<double>& va = ch == 0 ? fa : ka;
     const std::vector<double>& vb = ch == 0 ? fb : kb;
-    const double e0 = rms(va), e1 = rms(vb);
+    const double e0 = detail::rms(detail::to_vector(va)), e1 = detail::rms(detail::to_vector(vb));
     if (e1 > std::max(gate, e0 * (1.0 + options.decision.min_relative))) worse = true;
     if (e0 <= gate || !alone.empty()) continue;
     const Drop d = paired_drop(va, vb, options);

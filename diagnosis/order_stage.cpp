@@ -40,7 +40,7 @@ double scaled_peak_n(const fitting::FitResult& fit, const fitting::TrialData& d,
 // crosses zero: bisection on the scale's logarithm within the options'
 // bracket); NaN when the bracket does not hold it.
 double stiffness_scale(const ScaleMismatch& mismatch, const fitting::TrialData& d, const OrderStageOptions& o) {
-  if (d.grf_n.size() == 0 || !(d.impact_velocity_m_s > 0.0)) return kNaN;
+  if (!(d.impact_velocity_m_s > 0.0)) return kNaN;
   double lo = std::log(o.min_scale), hi = std::log(o.max_scale);
   const double f_lo = mismatch(d, std::exp(lo)), f_hi = mismatch(d, std::exp(hi));
   if (!(f_lo < 0.0 && f_hi > 0.0)) return kNaN;

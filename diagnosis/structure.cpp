@@ -16,6 +16,7 @@
 
 #include "core/error.h"
 #include "core/validate.h"
+#include "diagnosis/internal.h"
 
 namespace dropfit::diagnosis {
 namespace {
@@ -627,10 +628,7 @@ double log_paired_t(const std::vector<double>& before, const std::vector<double>
       la.push_back(std::log(after[i]));
     }
   if (lb.size() < 3) return std::numeric_limits<double>::quiet_NaN();
-  const auto vec = [](const std::vector<double>& v) {
-    return Eigen::Map<const Eigen::VectorXd>(v.data(), static_cast<Eigen::Index>(v.size())).eval();
-  };
-  return paired_improvement(vec(lb), vec(la), 0.0, 0.0, 0.0).t;
+  return paired_improvement(detail::to_vector(lb), detail::to_vector(la), 0.0, 0.0, 0.0).t;
 }
 
 const TermScore* StructureReport::best() const {

@@ -238,10 +238,9 @@ PairedImprovement paired_improvement(const Eigen::VectorXd& before, const Eigen:
 
 // The paired t on the logarithms of positive errors (each pair's ratio),
 // for errors that span orders of magnitude, where one large error before
-// hides a fall in all the others from the differences' t (a gross marker
-// label slip: 18 markers from 30-7000 mm to 0.4 mm, t = 1.7 on the raw
-// errors). Pairs with an error not above 0 are left out; NaN with fewer
-// than 3 left.
+// hides a fall in all the others from the differences' t (a marker label
+// slip spoils the other markers' errors by very unequal amounts). Pairs
+// with an error not above 0 are left out; NaN with fewer than 3 left.
 double log_paired_t(const std::vector<double>& before, const std::vector<double>& after);
 
 // ---- The whole test ------------------------------------------------------

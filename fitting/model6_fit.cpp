@@ -808,8 +808,7 @@ Model6FitResult fit_model6(const std::vector<TrialData>& trials, const Model6Fit
     e.se = std::exp(u[i]) * log_se[i];
     e.rel_se = e.se / e.value;
     e.identifiable = std::isfinite(log_se[i]) && log_se[i] < 1.0;
-    // No 95 % interval: the column's effective value, not the foam's own
-    // (docs/validation.md: Wald intervals held 7 of 26 true values).
+    // No 95 % interval: the column's effective value (kEffectiveNote).
     e.note = e.at_bound ? "the bound, not the data, sets it" : kEffectiveNote;
     res.estimates.push_back(e);
   }
